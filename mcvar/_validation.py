@@ -1,0 +1,147 @@
+"""Argument checks shared by every mcvar module (layer 0).
+
+One helper per rule, so that every public function reports bad input the same
+way: a ``TypeError`` for the wrong kind of object, a ``ValueError`` for the
+wrong value or shape, each naming the argument, the rule and what was received.
+Comparisons are written so that NaN fails them.
+"""
+from __future__ import annotations
+
+import numbers
+from typing import Iterable
+
+import numpy as np
+
+__all__ = [
+    "as_rng",
+    "check_count",
+    "check_choice",
+    "check_positive",
+    "check_probability",
+    "as_array",
+    "as_points",
+    "as_directions",
+    "as_unit_square",
+]
+
+
+def as_rng(rng=None) -> np.random.Generator:
+    """Normalise ``rng`` to a :class:`numpy.random.Generator`.
+
+    Accepts ``None`` (fresh entropy), an ``int`` seed, a
+    :class:`numpy.random.SeedSequence` or a ``Generator`` (returned as is, so
+    the caller's stream advances). Anything else is a ``TypeError``.
+    """
+    if rng is None or isinstance(rng, (np.random.Generator, np.random.SeedSequence)):
+        return np.random.default_rng(rng)
+    if isinstance(rng, (bool, np.bool_)):
+        raise TypeError(f"rng must be None, an int seed, a SeedSequence or a numpy Generator; got {rng!r}")
+    if isinstance(rng, numbers.Integral):
+        if int(rng) < 0:
+            raise ValueError(f"rng must be a non-negative int seed; got {rng}")
+        return np.random.default_rng(int(rng))
+    raise TypeError(
+        "rng must be None, an int seed, a SeedSequence or a numpy Generator; "
+        f"got {type(rng).__name__}"
+    )
+
+
+def check_count(n, name: str = "n", *, allow_zero: bool = False) -> int:
+    """Return ``n`` as a Python int after checking it is a whole number >= 1.
+
+    ``bool`` and floats (even ``4.0``) are a ``TypeError``: a sample count is
+    never fractional. ``allow_zero=True`` admits 0 (empty outputs).
+    """
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, numbers.Integral):
+        raise TypeError(f"{name} must be an integer; got {type(n).__name__} {n!r}")
+    n = int(n)
+    low = 0 if allow_zero else 1
+    if not n >= low:
+        raise ValueError(f"{name} must be >= {low}; got {n}")
+    return n
+
+
+def check_choice(value, name: str, choices: Iterable[str]) -> str:
+    """Check that ``value`` is one of the strings ``choices``."""
+    choices = tuple(choices)
+    if not isinstance(value, str):
+        raise TypeError(f"{name} must be a string, one of {choices}; got {type(value).__name__}")
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {choices}; got {value!r}")
+    return value
+
+
+def check_positive(x, name: str, *, allow_zero: bool = False, allow_inf: bool = False) -> float:
+    """Return the real scalar ``x`` as float after checking ``x > 0`` (or ``>= 0``)."""
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
+        raise TypeError(f"{name} must be a real number; got {type(x).__name__} {x!r}")
+    x = float(x)
+    ok = (x >= 0.0) if allow_zero else (x > 0.0)
+    if not ok or (not allow_inf and not np.isfinite(x)):
+        rule = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {rule}; got {x}")
+    return x
+
+
+def check_probability(x, name: str) -> float:
+    """Return ``x`` as float after checking ``0 <= x <= 1``."""
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
+        raise TypeError(f"{name} must be a real number; got {type(x).__name__} {x!r}")
+    x = float(x)
+    if not 0.0 <= x <= 1.0:
+        raise ValueError(f"{name} must lie in [0, 1]; got {x}")
+    return x
+
+
+def as_array(x, name: str, *, ndim=None, last=None, finite: bool = True,
+             nonnegative: bool = False, dtype=np.float64) -> np.ndarray:
+    """Convert ``x`` to a float array and check its shape and values.
+
+    Parameters
+    ----------
+    ndim : int, optional
+        Required number of dimensions.
+    last : int, optional
+        Required length of the last axis (coordinates on the last axis).
+    finite : bool
+        Reject NaN and +-Inf.
+    nonnegative : bool
+        Reject negative entries.
+    """
+    try:
+        arr = np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be array-like of numbers; got {type(x).__name__}") from exc
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f"{name} must have {ndim} dimensions; got shape {arr.shape}")
+    if last is not None and (arr.ndim == 0 or arr.shape[-1] != last):
+        raise ValueError(f"{name} must have shape (..., {last}); got shape {arr.shape}")
+    if finite and arr.size and not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (no NaN or Inf)")
+    if nonnegative and arr.size and not np.all(arr >= 0):
+        raise ValueError(f"{name} must be non-negative; minimum is {np.nanmin(arr)}")
+    return arr
+
+
+def as_points(points, name: str = "points", *, d=None, unit: bool = False) -> np.ndarray:
+    """Check an ``(n, d)`` point set and return it as float64.
+
+    ``unit=True`` also requires every coordinate to lie in the closed unit
+    interval [0, 1] (the domain of samplers and warps).
+    """
+    arr = as_array(points, name, ndim=2)
+    if d is not None and arr.shape[1] != d:
+        raise ValueError(f"{name} must have shape (n, {d}); got shape {arr.shape}")
+    if unit and arr.size and not (np.all(arr >= 0.0) and np.all(arr <= 1.0)):
+        raise ValueError(f"{name} must lie in [0, 1]^d; got values in [{arr.min()}, {arr.max()}]")
+    return arr
+
+
+def as_unit_square(u, name: str = "u") -> np.ndarray:
+    """Check warp input: an ``(n, 2)`` array of points in [0, 1]^2 (1.0 included)."""
+    return as_points(u, name, d=2, unit=True)
+
+
+def as_directions(v, name: str = "directions") -> np.ndarray:
+    """Check an array of 3D vectors, shape ``(..., 3)``, finite, as float64."""
+    return as_array(v, name, last=3)

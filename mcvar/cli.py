@@ -1,0 +1,165 @@
+"""The ``mcvar`` command (layer 7).
+
+Subcommands::
+
+    mcvar samplers  --n 256 --out DIR        every sampler's points, spectra, discrepancy vs n
+    mcvar render    cornell --spp 64 ...     one image, .npy (linear), .png (sRGB) or .exr
+    mcvar converge  TARGET --out DIR         variance / bias / MSE / efficiency vs spp report
+    mcvar demo      [--out DIR]              the default Cornell-box convergence report
+
+Each subcommand parses its options and calls one library function; all the
+work (and its validation) lives in the library so notebooks and tests use the
+same code.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from . import __version__
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from exc
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one integer")
+    return values
+
+
+def _name_list(text: str) -> list[str]:
+    values = [v.strip() for v in text.split(",") if v.strip()]
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one name")
+    return values
+
+
+def _cmd_samplers(args) -> int:
+    from .sampler_report import write_samplers_report
+
+    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, seed=args.seed,
+                                  progress=not args.quiet)
+    for key, path in paths.items():
+        print(f"{key}: {path}")
+    return 0
+
+
+def _cmd_render(args) -> int:
+    from .images import write_image
+    from .integrators import render
+    from .scene import load_scene
+
+    scene = load_scene(args.scene)
+    result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
+                    sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
+                    heuristic=args.heuristic, batch_spp=args.batch_spp,
+                    workers=args.workers, progress=not args.quiet)
+    path = write_image(args.out, result.image)
+    note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
+    print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
+          f"{result.spp} spp in {result.seconds:.2f} s{note}")
+    return 0
+
+
+def _cmd_converge(args) -> int:
+    from .report import convergence_report
+
+    paths = convergence_report(args.target, args.out, methods=args.methods, samplers=args.samplers,
+                               spp=args.spp, replicates=args.replicates, res=args.res,
+                               seed=args.seed, workers=args.workers, progress=not args.quiet)
+    for key, path in paths.items():
+        print(f"{key}: {path}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from .report import demo
+
+    paths = demo(args.out, progress=not args.quiet)
+    for key, path in paths.items():
+        print(f"{key}: {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mcvar", description="Monte Carlo estimation and its variance, measured.")
+    parser.add_argument("--version", action="version", version=f"mcvar {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    quiet = argparse.ArgumentParser(add_help=False)
+    quiet.add_argument("--quiet", action="store_true", help="no progress bars")
+
+    p = sub.add_parser("samplers", parents=[quiet],
+                       help="plot every sampler, its spectrum and discrepancy vs n",
+                       description="Write a figure of every sampler's points side by side, their "
+                                   "power spectra, and discrepancy versus n with fitted slopes "
+                                   "(PNG), plus a CSV of the numbers.")
+    p.add_argument("--n", type=int, default=256, help="points per sampler in the scatter plots (default 256)")
+    p.add_argument("--n-max", type=int, default=4096, help="largest n of the discrepancy sweep (default 4096)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--out", type=Path, default=Path("out/samplers"), help="output folder")
+    p.set_defaults(func=_cmd_samplers)
+
+    p = sub.add_parser("render", parents=[quiet], help="render one image of a scene",
+                       description="Render a scene with one integrator and sampler. .npy holds "
+                                   "linear radiance (H, W, 3), row 0 at the top; .png is tonemapped "
+                                   "to sRGB; .exr is linear. Ctrl-C keeps the spp finished so far.")
+    p.add_argument("scene", help="scene name, e.g. cornell, cornell-spheres")
+    p.add_argument("--res", type=int, default=64, help="image width and height in pixels (default 64)")
+    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
+    p.add_argument("--integrator", default="path", help="path, path_bsdf, direct_light, direct_bsdf, "
+                                                          "direct_mis, albedo, normal, depth, raster")
+    p.add_argument("--sampler", default="random", help="pixel sampler name from mcvar.samplers (default random)")
+    p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
+    p.add_argument("--max-depth", type=int, default=None,
+                   help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
+    p.add_argument("--heuristic", default="power", help="MIS heuristic: power or balance")
+    p.add_argument("--batch-spp", type=int, default=None, help="spp per batch (bounds memory)")
+    p.add_argument("--workers", type=int, default=1, help="processes to spread spp batches over")
+    p.add_argument("--out", type=Path, default=Path("out/render.png"), help=".npy, .png or .exr")
+    p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("converge", parents=[quiet], help="variance / bias / MSE / efficiency vs spp report",
+                       description="Sweep methods x samplers x spp levels x replicates on a scene "
+                                   "(cornell, ...) or an integrand (checkerboard, hemisphere, ...) "
+                                   "and write plots, a CSV of every number and a summary page.")
+    p.add_argument("target", help="scene (cornell, cornell-spheres) or integrand (checkerboard, hemisphere, ...)")
+    p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
+                   default=None, help="comma-separated integrators or estimators")
+    p.add_argument("--samplers", type=_name_list, default=None, help="comma-separated sampler names")
+    p.add_argument("--spp", type=_int_list, default=None, help="comma-separated spp (or N) levels")
+    p.add_argument("--replicates", type=int, default=8, help="independent replicates per level (default 8)")
+    p.add_argument("--res", type=int, default=32, help="image resolution for scenes (default 32)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--out", type=Path, default=Path("out/converge"), help="output folder")
+    p.set_defaults(func=_cmd_converge)
+
+    p = sub.add_parser("demo", parents=[quiet], help="the default Cornell-box convergence report",
+                       description="Render the Cornell box with several integrators and samplers at "
+                                   "increasing spp and write the convergence report.")
+    p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
+    p.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        print(f"mcvar {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"mcvar {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

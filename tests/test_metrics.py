@@ -1,0 +1,53 @@
+import numpy as np
+import pytest
+
+from mcvar.metrics import loglog_fit, mse, relative_mse
+
+
+def test_mse_and_relative_mse_exact_values():
+    ref = np.array([1.0, 2.0, 0.0])
+    est = np.array([1.5, 2.0, 0.1])
+    assert mse(ref, est) == pytest.approx((0.25 + 0.01) / 3)
+    assert relative_mse(ref, est, eps=0.01) == pytest.approx((0.25 / 1.01 + 0.01 / 0.01) / 3)
+    with pytest.raises(ValueError, match="estimate must have the shape of reference"):
+        mse(ref, est[:2])
+
+
+def test_loglog_fit_recovers_exact_power_law():
+    x = np.array([1, 2, 4, 8, 16, 32.0])
+    fit = loglog_fit(x, 3.0 * x ** -0.5)
+    assert fit.slope == pytest.approx(-0.5, abs=1e-12)
+    assert np.exp(fit.intercept) == pytest.approx(3.0)
+    assert fit.slope_stderr < 1e-10
+
+
+def test_loglog_fit_interval_covers_true_slope_at_its_level():
+    # Coverage of the 95% interval over 400 noisy fits is Binomial(400, 0.95):
+    # accept anything within 4.5 binomial standard deviations.
+    rng = np.random.default_rng(918273645)
+    x = np.geomspace(16, 4096, 9)
+    hits = 0
+    R = 400
+    for _ in range(R):
+        y = x ** -1.0 * np.exp(rng.normal(0, 0.2, x.size))
+        lo, hi = loglog_fit(x, y).slope_ci(0.95)
+        hits += lo <= -1.0 <= hi
+    sd = np.sqrt(R * 0.95 * 0.05)
+    assert abs(hits - 0.95 * R) < 4.5 * sd
+
+
+def test_weighted_fit_uses_given_sigmas():
+    x = np.geomspace(1, 1000, 7)
+    y = x ** -1.0
+    fit = loglog_fit(x, y, sigma_log=np.full(7, 0.1))
+    assert fit.slope == pytest.approx(-1.0)
+    # the slope's standard error is sigma / sqrt(sum (lx - mean)^2)
+    lx = np.log(x)
+    assert fit.slope_stderr == pytest.approx(0.1 / np.sqrt(np.sum((lx - lx.mean()) ** 2)))
+
+
+def test_loglog_fit_rejects_bad_input():
+    with pytest.raises(ValueError, match="at least 3"):
+        loglog_fit([1, 2], [1, 2])
+    with pytest.raises(ValueError, match="positive"):
+        loglog_fit([1, 2, 3], [1, 0, 3])
