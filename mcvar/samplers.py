@@ -1,0 +1,734 @@
+"""Point sets in the unit square: the lecture's samplers (layer 1).
+
+Every sampler has the signature ``name(n, *, rng=None, **options)`` and returns
+an ``(n, 2)`` float64 array (``(n, dim)`` where a ``dim`` option exists) with
+every coordinate in [0, 1): strictly below 1, so ``floor(u * k)`` never indexes
+past an array. The same ``rng`` (seed or Generator state) gives the same points.
+:data:`SAMPLERS` maps the names to the functions; :func:`get_sampler` looks one
+up; :func:`pixel_samples` draws an independently randomized set per pixel,
+vectorised over pixels, for the tracer.
+
+The lecture's slides "Uniform / Random / Jittered / N-Rooks / Multi-Jittered /
+Hammersley / Low-Discrepancy / Blue Noise Sampling" are implemented here; their
+discrepancy and spectra are measured by :mod:`mcvar.discrepancy`.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import qmc
+
+from ._validation import as_points, as_rng, check_choice, check_count, check_positive
+
+__all__ = [
+    "SAMPLERS",
+    "get_sampler",
+    "pixel_samples",
+    "cranley_patterson",
+    "digital_shift",
+    "radical_inverse",
+    "random",
+    "grid",
+    "jittered",
+    "n_rooks",
+    "multi_jittered",
+    "hammersley",
+    "halton",
+    "sobol",
+    "blue_noise",
+]
+
+#: Largest float64 below 1: every sampler clamps to it so that u < 1 holds
+#: even where ``(k - 1 + u) / k`` rounds up to exactly 1.0.
+ONE_MINUS_EPS = float(np.nextafter(1.0, 0.0))
+
+_FRACTION_BITS = 52  # digital shifts act on the first 52 binary digits
+
+
+def _below_one(x: np.ndarray) -> np.ndarray:
+    return np.minimum(x, ONE_MINUS_EPS, out=x)
+
+
+def _check_dim(dim, *, name: str = "dim") -> int:
+    return check_count(dim, name)
+
+
+def _primes(k: int) -> list[int]:
+    """The first ``k`` primes (bases of the Halton sequence)."""
+    primes: list[int] = []
+    candidate = 2
+    while len(primes) < k:
+        if all(candidate % p for p in primes if p * p <= candidate):
+            primes.append(candidate)
+        candidate += 1
+    return primes
+
+
+def _integer_root(n: int, dim: int, sampler: str, name: str = "n") -> int:
+    """``k`` with ``k**dim == n`` or a ValueError naming the sampler and rule."""
+    k = int(round(n ** (1.0 / dim)))
+    for cand in (k - 1, k, k + 1):
+        if cand >= 1 and cand ** dim == n:
+            return cand
+    power = "perfect square" if dim == 2 else f"perfect {dim}-th power"
+    below = max(int(math.floor(n ** (1.0 / dim))), 1)
+    raise ValueError(
+        f"{name} must be a {power} for the {sampler} sampler (k**{dim} points on a k x ... x k grid); "
+        f"got {name}={n} (nearest: {below ** dim} or {(below + 1) ** dim})")
+
+
+# --------------------------------------------------------------------------
+# Randomizations shared by every deterministic pattern
+# --------------------------------------------------------------------------
+
+def cranley_patterson(points, rng=None) -> np.ndarray:
+    """Randomize a point set by one toroidal random shift (Cranley-Patterson rotation).
+
+    Parameters
+    ----------
+    points : array_like, shape (n, d)
+        Points in [0, 1]^d.
+    rng : None, int, SeedSequence or Generator
+        Source of the shift vector.
+
+    Returns
+    -------
+    ndarray, shape (n, d)
+        ``(points + s) mod 1`` with one ``s ~ U[0, 1)^d`` for the whole set,
+        clamped below 1.
+
+    Notes
+    -----
+    Each shifted point is uniform on [0, 1)^d, so any estimator averaging ``f``
+    over the set is unbiased, while the set keeps its structure on the torus:
+    the wrap-around L2 discrepancy is unchanged exactly, lattices stay
+    lattices. It does *not* preserve the (0, m, 2)-net property of Sobol or
+    Hammersley points (use :func:`digital_shift` for that).
+
+    References
+    ----------
+    R. Cranley and T. N. L. Patterson, "Randomization of number theoretic
+    methods for multiple integration", SIAM J. Numer. Anal. 13(6), 1976.
+
+    Examples
+    --------
+    >>> p = cranley_patterson(grid(4), rng=1)
+    >>> p.shape
+    (4, 2)
+    """
+    pts = as_points(points, "points", unit=True)
+    shift = as_rng(rng).random(pts.shape[1])
+    return _below_one(np.mod(pts + shift, 1.0))
+
+
+def digital_shift(points, rng=None) -> np.ndarray:
+    """Randomize a point set by a random base-2 digital shift (XOR of binary digits).
+
+    Parameters
+    ----------
+    points : array_like, shape (n, d)
+        Points in [0, 1)^d (1.0 is not allowed: it has no binary fraction).
+    rng : None, int, SeedSequence or Generator
+        Source of the shift.
+
+    Returns
+    -------
+    ndarray, shape (n, d)
+        Each coordinate's first 52 binary digits XOR-ed with the digits of
+        one random ``s_j ~ U[0, 1)`` per dimension.
+
+    Notes
+    -----
+    XOR with a fixed digit string maps every elementary interval
+    ``[a 2^-k, (a + 1) 2^-k)`` onto another one of the same size, so a
+    (t, m, s)-net in base 2 stays a (t, m, s)-net, and each shifted point is
+    uniform on [0, 1)^d. This is the cheapest randomization that keeps Sobol
+    and Hammersley stratification (Owen 2003, section 2.3).
+
+    References
+    ----------
+    A. B. Owen, "Variance with alternative scramblings of digital nets",
+    ACM TOMACS 13(4), 2003.
+    """
+    pts = as_points(points, "points")
+    if pts.size and not (np.all(pts >= 0.0) and np.all(pts < 1.0)):
+        raise ValueError(f"points must lie in [0, 1)^d for a digital shift; "
+                         f"got values in [{pts.min()}, {pts.max()}]")
+    shift = as_rng(rng).integers(0, 2 ** _FRACTION_BITS, size=pts.shape[1], dtype=np.uint64)
+    return _xor_shift(pts, shift)
+
+
+def _xor_shift(points: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """XOR the 52-bit fractions of ``points`` (..., d) with integer ``shift`` (broadcast)."""
+    bits = np.ldexp(points, _FRACTION_BITS).astype(np.uint64)
+    return np.ldexp((bits ^ shift).astype(np.float64), -_FRACTION_BITS)
+
+
+# --------------------------------------------------------------------------
+# Batched generators: (sets, n, d) arrays, one independent set per leading index
+# --------------------------------------------------------------------------
+
+def _random_sets(sets: int, n: int, d: int, rng) -> np.ndarray:
+    return rng.random((sets, n, d))
+
+
+def _grid_base(n: int, d: int) -> np.ndarray:
+    k = _integer_root(n, d, "grid")
+    idx = np.indices((k,) * d).reshape(d, -1).T[:, ::-1]  # x fastest, then y, ...
+    return (idx + 0.5) / k
+
+
+def _jittered_sets(sets: int, n: int, d: int, rng) -> np.ndarray:
+    k = _integer_root(n, d, "jittered")
+    idx = np.indices((k,) * d).reshape(d, -1).T[:, ::-1]
+    return _below_one((idx + rng.random((sets, n, d))) / k)
+
+
+def _latin_sets(sets: int, n: int, d: int, rng) -> np.ndarray:
+    perms = rng.permuted(np.broadcast_to(np.arange(n), (sets, d, n)), axis=-1)
+    pts = (perms + rng.random((sets, d, n))) / n
+    return _below_one(np.ascontiguousarray(pts.transpose(0, 2, 1)))
+
+
+def _mj_shape(n: int) -> tuple[int, int]:
+    """Columns and rows (nx, ny) with nx * ny = n, as square as n allows."""
+    ny = max(d for d in range(1, math.isqrt(n) + 1) if n % d == 0)
+    return n // ny, ny
+
+
+def _multi_jittered_sets(sets: int, n: int, rng, correlated: bool) -> np.ndarray:
+    nx, ny = _mj_shape(n)
+    # cell (i, j): column i < nx, row j < ny; sample index s = j * nx + i
+    i = np.arange(nx)[None, :]
+    j = np.arange(ny)[:, None]
+    if correlated:  # one permutation shared by all columns / all rows (Kensler 2013)
+        px = rng.permuted(np.broadcast_to(np.arange(ny), (sets, ny)), axis=-1)[:, :, None]
+        py = rng.permuted(np.broadcast_to(np.arange(nx), (sets, nx)), axis=-1)[:, None, :]
+    else:  # an independent permutation per column and per row (Chiu et al. 1994)
+        px = rng.permuted(np.broadcast_to(np.arange(ny), (sets, nx, ny)), axis=-1)
+        px = px.transpose(0, 2, 1)  # px[:, j, i]: substratum of the point in row j, column i
+        py = rng.permuted(np.broadcast_to(np.arange(nx), (sets, ny, nx)), axis=-1)
+    jitter = rng.random((sets, ny, nx, 2))
+    x = (i * ny + px + jitter[..., 0]) / n
+    y = (j * nx + py + jitter[..., 1]) / n
+    pts = np.stack([np.broadcast_to(x, (sets, ny, nx)), np.broadcast_to(y, (sets, ny, nx))], axis=-1)
+    return _below_one(pts.reshape(sets, n, 2))
+
+
+# --------------------------------------------------------------------------
+# Radical inverse, Hammersley, Halton, Sobol
+# --------------------------------------------------------------------------
+
+def radical_inverse(index, base: int = 2, *, permutations=None) -> np.ndarray:
+    """The radical inverse Phi_b(i): the base-b digits of ``i`` mirrored about the point.
+
+    Parameters
+    ----------
+    index : array_like of int
+        Non-negative integers ``i``.
+    base : int
+        Base ``b >= 2``.
+    permutations : ndarray, shape (levels, base), optional
+        One permutation of the digits {0, ..., b - 1} per digit level
+        (scrambled radical inverse); ``levels`` digits are produced, trailing
+        zero digits included, so that every output is uniform when the
+        permutations are random.
+
+    Returns
+    -------
+    ndarray of float64, same shape as ``index``, in [0, 1).
+
+    Notes
+    -----
+    If ``i = sum_j a_j(i) b^j`` then ``Phi_b(i) = sum_j a_j(i) b^(-j-1)``
+    (lecture, slide "Hammersley Sampling"). The slide's example is
+    ``13 = 1101_2 -> 0.1011_2 = 1/2 + 1/8 + 1/16 = 11/16 = 0.6875``; the slide
+    prints 0.6975, a typo. The digits are accumulated as an integer and scaled
+    once, so base-2 values are exact.
+
+    Examples
+    --------
+    >>> float(radical_inverse(13, 2))
+    0.6875
+    """
+    b = check_count(base, "base")
+    if b < 2:
+        raise ValueError(f"base must be >= 2; got {b}")
+    idx = np.asarray(index)
+    if idx.dtype.kind not in "iu":
+        raise TypeError(f"index must hold integers; got dtype {idx.dtype}")
+    if idx.size and idx.min() < 0:
+        raise ValueError(f"index must be >= 0; got minimum {idx.min()}")
+    idx = idx.astype(np.int64)
+    if permutations is None:
+        levels = 0
+        top = int(idx.max()) if idx.size else 0
+        while top > 0:
+            top //= b
+            levels += 1
+        perms = None
+    else:
+        perms = np.asarray(permutations)
+        if perms.ndim != 2 or perms.shape[1] != b:
+            raise ValueError(f"permutations must have shape (levels, {b}); got {perms.shape}")
+        levels = perms.shape[0]
+    reversed_digits = np.zeros(idx.shape, dtype=np.float64)
+    scale = 1.0
+    rest = idx.copy()
+    for level in range(levels):
+        digit = rest % b
+        rest //= b
+        if perms is not None:
+            digit = perms[level][digit]
+        reversed_digits = reversed_digits * b + digit
+        scale /= b
+    return _below_one(np.asarray(reversed_digits * scale, dtype=np.float64))
+
+
+def _scramble_levels(base: int) -> int:
+    """Digits needed for the scrambled radical inverse to reach float64 precision."""
+    return int(math.ceil(53 * math.log(2) / math.log(base)))
+
+
+def _radical_columns(index: np.ndarray, bases, rng, scramble: bool) -> np.ndarray:
+    cols = []
+    for b in bases:
+        perms = None
+        if scramble:
+            levels = _scramble_levels(b)
+            perms = rng.permuted(np.broadcast_to(np.arange(b), (levels, b)), axis=-1)
+        cols.append(radical_inverse(index, b, permutations=perms))
+    return np.stack(cols, axis=-1) if cols else np.empty((index.size, 0))
+
+
+def hammersley(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarray:
+    """Hammersley points ``(i / n, Phi_2(i), Phi_3(i), ...)``, i = 0 ... n - 1.
+
+    Parameters
+    ----------
+    n : int
+        Number of points (the whole set depends on n: not extensible).
+    rng : None, int, SeedSequence or Generator
+        Used only when ``scramble``.
+    dim : int
+        Dimension; coordinate k >= 1 is the radical inverse in the k-th prime.
+    scramble : bool
+        Randomize: the first coordinate by a random base-2 digital shift, the
+        others by random digit permutations per digit level. In base 2 both
+        are XORs with random bits, so the (0, m, 2)-net property of n = 2^m
+        points in 2D is kept.
+
+    Notes
+    -----
+    Lecture slide "Hammersley Sampling": ``p_i = (i / n, Phi_2(i))``. For
+    ``n = 2^m`` the 2D set is a (0, m, 2)-net in base 2: every elementary
+    interval of area 1/n holds exactly one point, so its star discrepancy is
+    O(log n / n). (The slide's 0.6975 for Phi_2(13) should read 0.6875, see
+    :func:`radical_inverse`.)
+
+    References
+    ----------
+    J. M. Hammersley, "Monte Carlo methods for solving multivariable
+    problems", Ann. New York Acad. Sci. 86, 1960.
+
+    Examples
+    --------
+    >>> hammersley(4)
+    array([[0.  , 0.  ],
+           [0.25, 0.5 ],
+           [0.5 , 0.25],
+           [0.75, 0.75]])
+    """
+    n = check_count(n)
+    d = _check_dim(dim)
+    i = np.arange(n)
+    if scramble:
+        gen = as_rng(rng)
+        first = _xor_shift(i[:, None] / n, gen.integers(0, 2 ** _FRACTION_BITS, size=1, dtype=np.uint64))
+        rest = _radical_columns(i, _primes(d - 1), gen, True)
+    else:
+        first = (i / n)[:, None]
+        rest = _radical_columns(i, _primes(d - 1), None, False)
+    return np.concatenate([first, rest], axis=1)
+
+
+def halton(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarray:
+    """The Halton sequence ``(Phi_2(i), Phi_3(i), Phi_5(i), ...)``, i = 0 ... n - 1.
+
+    Parameters
+    ----------
+    n : int
+        Number of points (a prefix of an infinite sequence: extensible).
+    rng : None, int, SeedSequence or Generator
+        Used only when ``scramble``.
+    dim : int
+        Dimension; coordinate k uses the k-th prime base.
+    scramble : bool
+        Random digit permutations, one per base and digit level (the
+        randomization scipy.stats.qmc.Halton also applies); removes the
+        correlation between high prime bases.
+
+    Notes
+    -----
+    Star discrepancy O((log n)^d / n) for every prefix.
+
+    References
+    ----------
+    J. H. Halton, "On the efficiency of certain quasi-random sequences of
+    points in evaluating multi-dimensional integrals", Numer. Math. 2, 1960.
+    """
+    n = check_count(n)
+    d = _check_dim(dim)
+    gen = as_rng(rng) if scramble else None
+    return _radical_columns(np.arange(n), _primes(d), gen, scramble)
+
+
+def _sobol_points(n: int, d: int, scramble: bool, rng) -> np.ndarray:
+    engine = qmc.Sobol(d, scramble=scramble, rng=rng)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # re-issued below with our stacklevel
+        return engine.random(n)
+
+
+def sobol(n, *, rng=None, dim: int = 2, scramble: bool = True) -> np.ndarray:
+    """Sobol' points from :class:`scipy.stats.qmc.Sobol`, scrambled by default.
+
+    Parameters
+    ----------
+    n : int
+        Number of points; a power of 2 keeps the net property (others warn).
+    rng : None, int, SeedSequence or Generator
+        Source of the scrambling.
+    dim : int
+        Dimension (scipy supports up to 21201).
+    scramble : bool
+        scipy's randomization: a random linear matrix scramble plus a random
+        digital shift (Matousek 1998), which keeps every (t, m, s)-net property
+        and makes each point uniform. (Full nested Owen scrambling has the
+        same first and second moments for many integrands but is not what
+        scipy implements.) ``False`` gives the classic unscrambled sequence,
+        whose first point is the origin.
+
+    Notes
+    -----
+    A (t, s)-sequence in base 2: in 2D, t = 0, so every aligned block of 2^m
+    points is a (0, m, 2)-net (like Hammersley, but extensible).
+
+    References
+    ----------
+    I. M. Sobol', "On the distribution of points in a cube and the approximate
+    evaluation of integrals", USSR Comput. Math. Math. Phys. 7(4), 1967.
+    J. Matousek, "On the L2-discrepancy for anchored boxes", J. Complexity
+    14(4), 1998.
+    """
+    n = check_count(n)
+    d = _check_dim(dim)
+    if n & (n - 1):
+        warnings.warn(f"sobol: n={n} is not a power of 2, so the points are not a (0, m, 2)-net "
+                      "and lose balance", UserWarning, stacklevel=2)
+    return _below_one(_sobol_points(n, d, scramble, as_rng(rng)))
+
+
+# --------------------------------------------------------------------------
+# Blue noise (Poisson disk by toroidal dart throwing)
+# --------------------------------------------------------------------------
+
+def _poisson_disk(n: int, rng, rho: float) -> np.ndarray:
+    """n points, pairwise toroidal distance >= r, r = rho * r_max (shrunk if throwing stalls)."""
+    r = rho * math.sqrt(2.0 / (math.sqrt(3.0) * n))
+    pts = np.empty((0, 2))
+    stalls = 0
+    while pts.shape[0] < n:
+        need = n - pts.shape[0]
+        cand = rng.random((max(64, 16 * need), 2))
+        if pts.shape[0]:
+            dist, _ = cKDTree(pts, boxsize=1.0).query(cand, distance_upper_bound=r)
+            cand = cand[np.isinf(dist)]
+        if cand.shape[0] > 1:  # among the new darts, a later one loses against an earlier one
+            pairs = cKDTree(cand, boxsize=1.0).query_pairs(r, output_type="ndarray")
+            keep = np.ones(cand.shape[0], dtype=bool)
+            keep[pairs[:, 1]] = False
+            cand = cand[keep]
+        accepted = cand[:need]
+        pts = np.concatenate([pts, accepted])
+        stalls = stalls + 1 if accepted.shape[0] < max(1, need // 20) else 0
+        if stalls >= 5:  # near jamming: accept slightly closer points
+            r *= 0.97
+            stalls = 0
+    return pts
+
+
+def blue_noise(n, *, rng=None, radius: float = 0.7) -> np.ndarray:
+    """Blue-noise points: a Poisson-disk set on the torus by dart throwing.
+
+    Parameters
+    ----------
+    n : int
+        Number of points (exactly n are returned).
+    rng : None, int, SeedSequence or Generator
+        Source of the darts.
+    radius : float
+        Relative radius ``rho = r / r_max`` in (0, 0.85], where
+        ``r_max = sqrt(2 / (sqrt(3) n))`` is the spacing of n points on a
+        hexagonal lattice (the densest packing). 0.7 gives a clear blue-noise
+        spectrum and is reached quickly (maximal random packings jam near
+        rho = 0.77).
+
+    Notes
+    -----
+    Darts are thrown in vectorised batches; a dart is kept if no accepted
+    point and no earlier dart of its batch lies within ``r`` (toroidal
+    distance, via :class:`scipy.spatial.cKDTree` with ``boxsize=1``). If the
+    batches stall (five batches in a row each filling under 5 % of the
+    missing points), ``r`` shrinks by 3 % (so the achieved rho
+    may end slightly below ``radius``). Distances are measured on the torus, so
+    the set tiles without seams, Cranley-Patterson shifts keep it blue, and its
+    periodogram has no boundary artefacts. The spectrum is isotropic (no
+    preferred direction) with a dark centre and a bright ring at the mean
+    spacing (lecture, slide "Blue Noise"; the slide's word "anisotropic"
+    should read *isotropic*).
+
+    References
+    ----------
+    R. L. Cook, "Stochastic sampling in computer graphics", ACM TOG 5(1), 1986.
+    A. Lagae and P. Dutre, "A comparison of methods for generating Poisson
+    disk distributions", Computer Graphics Forum 27(1), 2008.
+    J. I. Yellott, "Spectral consequences of photoreceptor sampling in the
+    rhesus retina", Science 221, 1983.
+    """
+    n = check_count(n)
+    rho = check_positive(radius, "radius")
+    if not rho <= 0.85:
+        raise ValueError(f"radius must be <= 0.85 (relative to hexagonal packing; random packings "
+                         f"jam near 0.77); got {rho}")
+    return _below_one(_poisson_disk(n, as_rng(rng), rho))
+
+
+# --------------------------------------------------------------------------
+# The remaining public samplers (thin wrappers of the batched generators)
+# --------------------------------------------------------------------------
+
+def random(n, *, rng=None, dim: int = 2) -> np.ndarray:
+    """Independent uniform points (lecture, slide "Random Sampling").
+
+    Star discrepancy decays like n^-1/2 (law of the iterated logarithm).
+
+    Examples
+    --------
+    >>> random(3, rng=7).shape
+    (3, 2)
+    """
+    return _random_sets(1, check_count(n), _check_dim(dim), as_rng(rng))[0]
+
+
+def grid(n, *, rng=None, dim: int = 2) -> np.ndarray:
+    """Cell centres of a k x k grid, n = k^2 (lecture, slide "Uniform Sampling").
+
+    ``rng`` is accepted for the common signature and ignored: the grid is
+    deterministic (use :func:`cranley_patterson` to randomize it). Row-major
+    order, x fastest. A perfect square ``n`` is required (ValueError
+    otherwise); its star discrepancy decays only like n^-1/2 because whole
+    rows of points enter an anchored box together.
+    """
+    return _grid_base(check_count(n), _check_dim(dim))
+
+
+def jittered(n, *, rng=None, dim: int = 2) -> np.ndarray:
+    """One uniform point in each cell of a k x k grid, n = k^2 (slide "Jittered Sampling").
+
+    Notes
+    -----
+    Stratified sampling: the variance of the mean of a smooth integrand falls
+    like n^-2 in 2D instead of n^-1 (Mitchell 1996, "Consequences of
+    stratified sampling in graphics", SIGGRAPH). ``n`` must be ``k**dim``.
+    """
+    return _jittered_sets(1, check_count(n), _check_dim(dim), as_rng(rng))[0]
+
+
+def n_rooks(n, *, rng=None, dim: int = 2) -> np.ndarray:
+    """Latin hypercube ("N-rooks") points: each row and column holds exactly one point.
+
+    Notes
+    -----
+    Built directly: coordinate k of point i is ``(pi_k(i) + u) / n`` with an
+    independent uniform random permutation ``pi_k`` per dimension, so the
+    rooks condition holds by construction, in O(n) time.
+
+    The lecture's recipe (start on the diagonal, shuffle until no two points
+    share a row or column) may never terminate: if each attempt draws the
+    columns at random, it succeeds only when the draw is a permutation, with
+    probability n!/n^n ~ sqrt(2 pi n) e^-n (about 2e-4 already for n = 10);
+    the number of attempts is geometric, finite with probability 1 but with
+    no bound on any run, and its mean n^n/n! grows exponentially. A
+    procedure that swaps coordinates and checks the condition never needs to
+    search at all: a permutation *is* the rooks condition.
+
+    References
+    ----------
+    M. D. McKay, R. J. Beckman and W. J. Conover, "A comparison of three
+    methods for selecting values of input variables in the analysis of output
+    from a computer code", Technometrics 21(2), 1979.
+    P. Shirley, "Discrepancy as a quality measure for sample distributions",
+    Eurographics 1991.
+    """
+    return _latin_sets(1, check_count(n), _check_dim(dim), as_rng(rng))[0]
+
+
+def multi_jittered(n, *, rng=None, correlated: bool = True) -> np.ndarray:
+    """Multi-jittered points: jittered on an nx x ny grid *and* N-rooks at once.
+
+    Parameters
+    ----------
+    n : int
+        Number of points, factored as ``n = nx * ny`` with ny the largest
+        divisor <= sqrt(n) (a square grid for perfect squares; a prime n
+        degenerates to a 1 x n grid, i.e. plain N-rooks).
+    correlated : bool
+        True (default): Kensler's correlated multi-jitter, one substratum
+        permutation shared by all columns and one by all rows (lower
+        discrepancy and variance). False: Chiu, Shirley and Wang's original,
+        an independent permutation per column and per row.
+
+    Notes
+    -----
+    Point (i, j) of column i and row j has
+    ``x = (i ny + p_i(j) + u) / n`` and ``y = (j nx + q_j(i) + v) / n``:
+    each coarse cell holds one point (jittered) and each of the n fine
+    columns and rows holds one point (rooks condition), whatever the
+    permutations p, q are (lecture, slide "Multi-Jittered Sampling").
+
+    References
+    ----------
+    K. Chiu, P. Shirley and C. Wang, "Multi-jittered sampling", Graphics
+    Gems IV, 1994.
+    A. Kensler, "Correlated multi-jittered sampling", Pixar Technical Memo
+    13-01, 2013.
+    """
+    if not isinstance(correlated, (bool, np.bool_)):
+        raise TypeError(f"correlated must be a bool; got {type(correlated).__name__}")
+    return _multi_jittered_sets(1, check_count(n), as_rng(rng), bool(correlated))[0]
+
+
+#: The samplers by name (the tracer and the reports look them up here).
+SAMPLERS = {
+    "random": random,
+    "grid": grid,
+    "jittered": jittered,
+    "n_rooks": n_rooks,
+    "multi_jittered": multi_jittered,
+    "hammersley": hammersley,
+    "halton": halton,
+    "sobol": sobol,
+    "blue_noise": blue_noise,
+}
+
+
+def get_sampler(name: str):
+    """The sampler function called ``name``; ValueError listing the valid names otherwise."""
+    return SAMPLERS[check_choice(name, "sampler name", SAMPLERS)]
+
+
+# --------------------------------------------------------------------------
+# Per-pixel sample sets for the tracer
+# --------------------------------------------------------------------------
+
+def _pixel_pairs(name: str, n_pixels: int, spp: int, rng) -> np.ndarray:
+    """One independently randomized 2D pattern per pixel: (n_pixels, spp, 2)."""
+    if name == "random":
+        return _random_sets(n_pixels, spp, 2, rng)
+    if name == "jittered":
+        return _jittered_sets(n_pixels, spp, 2, rng)
+    if name == "n_rooks":
+        return _latin_sets(n_pixels, spp, 2, rng)
+    if name == "multi_jittered":
+        return _multi_jittered_sets(n_pixels, spp, rng, True)
+    if name in ("sobol", "hammersley"):
+        base = _sobol_points(spp, 2, False, None) if name == "sobol" else hammersley(spp)
+        shifts = rng.integers(0, 2 ** _FRACTION_BITS, size=(n_pixels, 1, 2), dtype=np.uint64)
+        return _xor_shift(base[None], shifts)
+    if name == "blue_noise":
+        base = _poisson_disk(spp, rng, 0.7)
+        flip = rng.integers(0, 2, size=(n_pixels, 1, 3)).astype(bool)  # 8 symmetries of the square
+        swapped = np.where(flip[..., 2:], base[None, :, ::-1], base[None])
+        reflected = np.where(flip[..., :2], 1.0 - swapped, swapped)
+        return _below_one(np.mod(reflected + rng.random((n_pixels, 1, 2)), 1.0))
+    base = _grid_base(spp, 2) if name == "grid" else halton(spp)
+    return _below_one(np.mod(base[None] + rng.random((n_pixels, 1, 2)), 1.0))
+
+
+def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.ndarray:
+    """Sample sets for every pixel: ``(n_pixels, spp, dim)`` in [0, 1).
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`SAMPLERS`.
+    n_pixels : int
+        Number of pixels (independent sets).
+    spp : int
+        Samples per pixel: a perfect square for ``grid`` and ``jittered``.
+    dim : int
+        Dimensions per sample (2 for the pixel position, 2 more per bounce...).
+    rng : None, int, SeedSequence or Generator
+        The same rng gives the same array.
+
+    Returns
+    -------
+    ndarray, shape (n_pixels, spp, dim), float64 in [0, 1)
+
+    Notes
+    -----
+    Dimensions come in 2D pairs (0, 1), (2, 3), ...; an odd last dimension is
+    the first coordinate of one more pair. Each pair is an independently
+    randomized pattern per pixel, and pairs after the first are shuffled over
+    the spp index independently per pixel ("padded" 2D samples, pbrt-v4's
+    ``PaddedSobolSampler``): every pair is stratified, pairs are decorrelated.
+    The first pair keeps the sampler's order.
+
+    Randomization per pixel, vectorised (no loop over pixels):
+
+    ======================================  ==========================================
+    sampler                                 per-pixel set
+    ======================================  ==========================================
+    random, jittered, n_rooks,              drawn independently for each pixel
+    multi_jittered (correlated)
+    sobol, hammersley                       one deterministic base set (unscrambled
+                                            Sobol', Hammersley) XOR-ed with a random
+                                            digital shift per pixel: keeps the
+                                            (0, m, 2)-net for spp = 2^m, pixels fully
+                                            independent, costs one XOR per sample
+    grid, halton                            the deterministic base set with a random
+                                            Cranley-Patterson shift per pixel (grid
+                                            stays one point per cell)
+    blue_noise                              one toroidal Poisson-disk base set drawn
+                                            from ``rng``, per pixel a random symmetry
+                                            of the square and a toroidal shift (the
+                                            Poisson-disk radius is kept; pixels share
+                                            the base set, so they are independent only
+                                            given it)
+    ======================================  ==========================================
+
+    Examples
+    --------
+    >>> pixel_samples("sobol", 4, 16, dim=4, rng=3).shape
+    (4, 16, 4)
+    """
+    name = check_choice(name, "name", SAMPLERS)
+    n_pixels = check_count(n_pixels, "n_pixels")
+    spp = check_count(spp, "spp")
+    d = _check_dim(dim)
+    if name in ("grid", "jittered"):
+        _integer_root(spp, 2, name, "spp")  # clear error before any work
+    pairs = (d + 1) // 2
+    streams = as_rng(rng).spawn(pairs)
+    out = np.empty((n_pixels, spp, 2 * pairs))
+    for k, gen in enumerate(streams):
+        block = _pixel_pairs(name, n_pixels, spp, gen)
+        if k:
+            order = gen.permuted(np.broadcast_to(np.arange(spp), (n_pixels, spp)), axis=-1)
+            block = np.take_along_axis(block, order[..., None], axis=1)
+        out[:, :, 2 * k:2 * k + 2] = block
+    return out[:, :, :d]
