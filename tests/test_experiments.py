@@ -1,0 +1,241 @@
+"""Tests of mcvar.experiments: streams, metrics, verdicts, executors, caches.
+
+The machinery is tested first on synthetic targets whose truth is known by
+construction (``_fake_evaluate``: a fixed image plus Gaussian noise of standard
+deviation SIGMA / sqrt(spp), plus a bias chosen by the method), then on the
+integrands of mcvar.examples and on the Cornell box.
+"""
+from __future__ import annotations
+
+from concurrent.futures import ProcessPoolExecutor
+from functools import partial
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from mcvar import experiments as ex
+
+SIGMA = 0.5
+BIAS = 0.2
+TRUTH = np.linspace(0.1, 1.0, 4 * 4 * 3).reshape(4, 4, 3)
+Z = 5.0  # two-sided alpha ~ 5.7e-7 per check
+
+
+def _fake_evaluate(method, sampler, spp, rng):
+    """Truth + noise; 'unbiased': sigma/sqrt(spp); 'biased': + BIAS (not consistent);
+    'vanishing': + BIAS/spp (biased, consistent); 'single': sigma, whatever spp
+    (unbiased, not consistent: the lecture's one random sample)."""
+    scale = SIGMA if method == "single" else SIGMA / np.sqrt(spp)
+    if sampler == "half":  # a 'better sampler': half the noise
+        scale = scale / 2
+    bias = {"unbiased": 0.0, "single": 0.0, "biased": BIAS, "vanishing": BIAS / spp}[method]
+    return TRUTH + bias + scale * rng.standard_normal(TRUTH.shape)
+
+
+def _fake_reference(rng, *, spp=4096):
+    return TRUTH + SIGMA / np.sqrt(spp) * rng.standard_normal(TRUTH.shape)
+
+
+def fake_target(**kw):
+    opts = dict(name="fake", evaluate=_fake_evaluate, key="fake-v1", methods=("unbiased",),
+                samplers=("random",), spp=(1, 4, 16, 64), reference_task=_fake_reference,
+                reference_chunks=8, reference_settings="spp=4096")
+    opts.update(kw)
+    return ex.Target(**opts)
+
+
+class Counting:
+    """An evaluate that counts its calls (in-process executors only) and can
+    raise KeyboardInterrupt on a given call, like a user pressing Ctrl-C."""
+
+    def __init__(self, interrupt_at=None):
+        self.calls = 0
+        self.interrupt_at = interrupt_at
+
+    def __call__(self, method, sampler, spp, rng):
+        self.calls += 1
+        if self.calls == self.interrupt_at:
+            raise KeyboardInterrupt
+        return _fake_evaluate(method, sampler, spp, rng)
+
+
+# ---------------------------------------------------------------- streams
+
+def test_run_seed_depends_only_on_configuration():
+    a = ex.run_seed(7, "k", "path", "random", 16, 4)
+    b = ex.run_seed(7, "k", "path", "random", 16, 4)
+    draws = lambda ss: [np.random.default_rng(s).random() for s in ss]  # noqa: E731
+    assert draws(a) == draws(b)
+    # distinct replicates, and distinct configurations (method, sampler, spp, seed)
+    others = [ex.run_seed(7, "k", "direct", "random", 16, 4), ex.run_seed(7, "k", "path", "sobol", 16, 4),
+              ex.run_seed(7, "k", "path", "random", 64, 4), ex.run_seed(8, "k", "path", "random", 16, 4)]
+    seen = set(draws(a))
+    assert len(seen) == 4
+    for o in others:
+        assert not seen & set(draws(o))
+
+
+# ---------------------------------------------------------------- metrics
+
+@pytest.fixture(scope="module")
+def fake_result():
+    target = fake_target(methods=("unbiased", "biased", "vanishing", "single"), samplers=("random", "half"),
+                         spp=(1, 4, 16, 64, 256))
+    return ex.sweep(target, replicates=16, seed=20240611, workers=1, progress=False)
+
+
+def test_variance_matches_construction(fake_result):
+    # per-pixel variance averaged over P = 48 pixels, each chi^2 with R - 1
+    # dof: relative standard deviation sqrt(2 / (P (R - 1))).
+    r, p = 16, TRUTH.size
+    rel_sd = np.sqrt(2 / (p * (r - 1)))
+    for m in fake_result.metrics:
+        expected = (SIGMA if m.method == "single" else SIGMA / np.sqrt(m.spp)) ** 2
+        expected /= 4 if m.sampler == "half" else 1
+        assert abs(m.variance / expected - 1) < Z * rel_sd, m
+        # the jackknife error agrees with the analytic one within a factor 2
+        assert 0.5 < m.variance_stderr / (expected * rel_sd) < 2, m
+
+
+def test_bias_squared_is_corrected_for_noise(fake_result):
+    for m in fake_result.metrics:
+        beta = {"unbiased": 0.0, "single": 0.0, "biased": BIAS, "vanishing": BIAS / m.spp}[m.method]
+        assert abs(m.bias2 - beta ** 2) < Z * m.bias2_stderr + 1e-12, m
+        assert m.mse == pytest.approx(m.variance + m.bias2)
+        assert m.efficiency == pytest.approx(1 / (m.mse * m.seconds))
+        assert m.figure_of_merit == pytest.approx(m.mse * m.seconds)
+
+
+def test_bias_test_and_verdicts(fake_result):
+    v = fake_result.verdicts
+    assert (v["unbiased"].label, v["biased"].label, v["vanishing"].label, v["single"].label) == \
+        ("both", "neither", "consistent", "unbiased")
+    for m in fake_result.metrics:
+        if m.method == "biased":
+            assert m.bias_detected and m.bias_z > Z
+        if m.method in ("unbiased", "single"):
+            assert not m.bias_detected
+    assert "Sidak" in v["biased"].evidence
+
+
+def test_variance_slope_is_minus_one_for_iid_noise(fake_result):
+    fit = fake_result.fits[("unbiased", "random")].variance
+    lo, hi = fit.slope_ci(1 - 1e-3)
+    assert lo <= -1 <= hi
+    assert fake_result.fits[("single", "random")].variance.slope_ci(1 - 1e-3)[0] <= 0
+
+
+def test_rows_hold_every_number(fake_result):
+    rows = fake_result.rows()
+    assert len(rows) == len(fake_result.metrics) == 4 * 2 * 5
+    assert {"variance", "bias2", "mse", "rel_mse", "seconds", "efficiency", "bias_pvalue",
+            "mse_x_time"} <= set(rows[0])
+    pv = fake_result.pixel_variance("unbiased", "random", 1)
+    assert pv.shape == TRUTH.shape
+
+
+# ---------------------------------------------------------------- executors, caches
+
+def _numbers(result):
+    skip = {"seconds", "efficiency", "mse_x_time"}  # wall time differs between executors
+    return [{k: v for k, v in row.items() if k not in skip} for row in result.rows()]
+
+
+def test_serial_process_and_dask_executors_agree(tmp_path):
+    target = fake_target(spp=(1, 4, 16))
+    kw = dict(replicates=4, seed=99991, progress=False, methods=("unbiased", "biased"))
+    serial = ex.sweep(target, workers=1, **kw)
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        process = ex.sweep(target, executor=pool, **kw)
+    distributed = pytest.importorskip("distributed")
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2,
+                            dashboard_address=None) as client:
+        dask = ex.sweep(target, executor=client.get_executor(), **kw)
+    for other in (process, dask):
+        assert _numbers(other) == _numbers(serial)
+        for key, value in serial.values.items():
+            np.testing.assert_array_equal(other.values[key], value)
+
+
+def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
+    kw = dict(replicates=3, seed=4242, progress=False, cache_dir=tmp_path, workers=1)
+    total = 2 * 3 * 3
+    first = Counting(interrupt_at=7)
+    with pytest.raises(KeyboardInterrupt):
+        ex.sweep(fake_target(evaluate=first, spp=(1, 4, 16)), samplers=("random", "half"), **kw)
+    assert first.calls == 7
+    second = Counting()
+    resumed = ex.sweep(fake_target(evaluate=second, spp=(1, 4, 16)), samplers=("random", "half"), **kw)
+    assert second.calls == total - 6 and resumed.computed == total - 6 and resumed.cached == 6
+    third = Counting()
+    again = ex.sweep(fake_target(evaluate=third, spp=(1, 4, 16)), samplers=("random", "half"), **kw)
+    assert third.calls == 0 and again.cached == total
+    assert _numbers(again) == _numbers(resumed)
+    # and the resumed numbers equal an uninterrupted run's
+    fresh = ex.sweep(fake_target(spp=(1, 4, 16)), samplers=("random", "half"),
+                     **{**kw, "cache_dir": tmp_path / "fresh"})
+    assert _numbers(fresh) == _numbers(resumed)
+
+
+def test_reference_is_cached_and_its_variance_measured(tmp_path):
+    calls = []
+
+    def task(rng):
+        calls.append(1)
+        return _fake_reference(rng)
+
+    target = fake_target(reference_task=task)
+    ref = ex.compute_reference(target, seed=5, cache_dir=tmp_path)
+    assert len(calls) == 8 and ref.chunks == 8 and ref.source.startswith("rendered")
+    # variance of the mean of 8 chunks of 4096 spp each: sigma^2 / (8 * 4096);
+    # pixel-average of chi^2_7 / 7 estimates: relative sd sqrt(2 / (48 * 7)).
+    expected = SIGMA ** 2 / (8 * 4096)
+    assert abs(ref.variance.mean() / expected - 1) < Z * np.sqrt(2 / (TRUTH.size * 7))
+    again = ex.compute_reference(target, seed=5, cache_dir=tmp_path)
+    assert len(calls) == 8 and again.source.startswith("cache")
+    np.testing.assert_array_equal(again.value, ref.value)
+    ex.compute_reference(target, seed=6, cache_dir=tmp_path)  # another seed: another key
+    assert len(calls) == 16
+
+
+def test_reference_from_user_file(tmp_path):
+    np.save(tmp_path / "ref.npy", TRUTH)
+    ref = ex.compute_reference(fake_target(), path=tmp_path / "ref.npy")
+    np.testing.assert_array_equal(ref.value, TRUTH)
+    assert np.all(ref.variance == 0) and ref.source.startswith("file")
+    result = ex.sweep(fake_target(spp=(1, 4, 16)), reference=tmp_path / "ref.npy", replicates=4,
+                      seed=11, workers=1, progress=False)
+    assert result.verdicts["unbiased"].unbiased
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        ex.compute_reference(fake_target(), path=tmp_path / "missing.npy")
+
+
+# ---------------------------------------------------------------- bad input
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="replicates must be >= 3"):
+        ex.sweep(fake_target(), replicates=2, workers=1, progress=False)
+    with pytest.raises(ValueError, match="spp must be >= 1"):
+        ex.sweep(fake_target(), spp=[0, 4], workers=1, progress=False)
+    with pytest.raises(ValueError, match="methods must be a non-empty"):
+        ex.sweep(fake_target(), methods=[], workers=1, progress=False)
+    with pytest.raises(TypeError, match="executor must be"):
+        ex.sweep(fake_target(), executor="pool", progress=False)
+    with pytest.raises(ValueError, match="method must look like"):
+        ex.parse_method("path:0")
+    with pytest.raises(TypeError, match="target must be"):
+        ex.make_target(3)
+    with pytest.raises(ValueError, match="shape"):
+        ex.sweep(fake_target(spp=(1, 4, 16)), reference=ex.Reference(np.zeros(3), np.zeros(3), 0.0, 0, "x"),
+                 replicates=3, workers=1, progress=False)
+
+
+def _nan_evaluate(method, sampler, spp, rng):
+    return np.full(3, np.nan)
+
+
+def test_non_finite_estimates_are_an_error():
+    with pytest.raises(ValueError, match="non-finite"):
+        ex.sweep(fake_target(evaluate=_nan_evaluate, exact=np.zeros(3)), spp=(1, 2, 4), replicates=3,
+                 workers=1, progress=False)
