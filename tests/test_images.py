@@ -137,7 +137,7 @@ def test_hdr_rle_writes_wards_run_packets(tmp_path):
     e_channel = bytes([128 + 127, 129]) * 8 + bytes([128 + 8, 129])
     scanline = bytes([2, 2, 1024 >> 8, 1024 & 255]) + channel * 3 + e_channel
     assert data.endswith(b"-Y 16 +X 1024\n" + scanline * 16)
-    np.testing.assert_array_equal(read_image(path), rgbe_decode(rgbe_encode(img)))
+    np.testing.assert_array_equal(read_image(tmp_path / "flat.hdr"), rgbe_decode(rgbe_encode(img)))
 
 
 def _handmade_hdr(resolution: bytes, body: bytes, fmt=b"FORMAT=32-bit_rle_rgbe\n") -> bytes:
