@@ -1,0 +1,1029 @@
+"""Reflectance functions and materials (layer 3).
+
+The lecture's 'BRDFs' and 'Materials' sections as code: the optics of a single
+interface (reflection, Snell refraction, the critical angle, exact and
+Schlick Fresnel, conductor Fresnel with a complex index) and the materials
+built on them, each with ``eval``, ``pdf`` and ``sample``.
+
+Conventions (docs/conventions.md, the lecture's 'Change of Syntax' slide)
+-------------------------------------------------------------------------
+* Surface-local space: the normal is **+y**; ``wo`` and ``wi`` are unit
+  vectors that both point **away** from the surface; arrays ``(n, 3)`` float64.
+* ``eval(wo, wi) -> (n, 3)`` is the BSDF ``f`` in RGB (per steradian), without
+  the cosine; Dirac-delta lobes are not part of ``eval`` (0 there).
+* ``pdf(wo, wi) -> (n,)`` is the density of ``sample`` per unit solid angle of
+  ``wi`` for the non-delta part, including the probability of choosing that
+  part; 0 for delta BSDFs.
+* ``sample(wo, u) -> BSDFSample(wi, weight, pdf)`` with ``u`` in [0, 1]^2.
+  For a non-delta sample ``weight = eval * |cos theta_i| / pdf`` and ``pdf`` is
+  per solid angle. For a delta lobe ``pdf`` is the *discrete* probability of
+  choosing that lobe and ``weight`` the lobe's throughput divided by it (glass
+  chooses reflection with probability ``F`` and returns weight 1 for it). A
+  failed sample (``wo`` below the horizon of a reflection model, a direction
+  drawn under the horizon) has ``weight = 0`` and ``pdf = 0``; never NaN.
+  ``sample(..., return_delta=True)`` also returns a per-sample mask telling
+  which samples came from a delta lobe (needed for mixed models such as
+  :class:`Plastic` by next-event estimation and MIS).
+* ``is_delta`` is True when every lobe is a Dirac delta; ``has_delta`` is True
+  when at least one is (so ``has_delta and not is_delta`` marks a mixed model
+  whose ``eval``/``pdf`` cover only the non-delta part).
+* Multi-lobe models choose a lobe with ``u[:, 0]``: lobe ``j`` is chosen when
+  ``u0`` falls in its interval ``[c_j, c_j + p_j)`` and ``u0`` is then rescaled
+  to ``(u0 - c_j) / p_j`` to sample that lobe, so stratification survives.
+* Reflection models are one-sided in local space: they reflect light arriving
+  on the +y side only (``wo.y > 0`` and ``wi.y > 0``); anything else gives 0.
+  Two-sided surfaces (the Cornell box walls) are handled by the caller, who
+  flips the shading normal towards ``wo``. Transmissive models
+  (:class:`Refractive`, :class:`Glass`) must *not* be flipped: ``wo.y < 0``
+  tells them the ray is inside the medium of index ``eta``.
+
+The transmitted radiance is not scaled by ``(eta_i / eta_t)^2``: like the
+lecture's glass code we transport the quantity that is conserved along paths
+entering and leaving a closed dielectric (the factors cancel for a camera and
+lights outside the glass).
+"""
+from __future__ import annotations
+
+import numbers
+from typing import Callable, Literal, NamedTuple
+
+import numpy as np
+from scipy.special import erf
+
+from ._validation import (
+    as_array,
+    as_rng,
+    as_unit_square,
+    check_choice,
+    check_count,
+    check_positive,
+)
+from .geometry import Frame, dot
+from .warps import (
+    square_to_beckmann,
+    square_to_beckmann_pdf,
+    square_to_cosine_hemisphere,
+    square_to_cosine_hemisphere_pdf,
+    square_to_ggx_pdf,
+    square_to_ggx_visible,
+    square_to_ggx_visible_pdf,
+    square_to_phong_lobe,
+    square_to_phong_lobe_pdf,
+)
+
+__all__ = [
+    "reflect",
+    "refract",
+    "critical_angle",
+    "brewster_angle",
+    "fresnel_dielectric",
+    "fresnel_schlick",
+    "fresnel_conductor",
+    "BSDFSample",
+    "BSDF",
+    "Lambertian",
+    "Mirror",
+    "Refractive",
+    "Glass",
+    "Microfacet",
+    "Conductor",
+    "Plastic",
+    "COPPER",
+    "GOLD",
+    ]
+
+_UNIT_TOL = 1e-6
+_FLIP_XZ = np.array([-1.0, 1.0, -1.0])
+
+#: Complex refractive indices ``(n, k)`` of copper and gold at the photon
+#: energies 1.88, 2.26 and 2.75 eV (659.5, 548.6 and 450.9 nm: red, green,
+#: blue) from Table I of Johnson & Christy (1972), "Optical constants of the
+#: noble metals", Phys. Rev. B 6, 4370.
+COPPER = {"eta": (0.22, 1.02, 1.24), "k": (3.747, 2.577, 2.397)}
+GOLD = {"eta": (0.14, 0.43, 1.38), "k": (3.697, 2.455, 1.914)}
+_PRESETS = {"copper": COPPER, "gold": GOLD}
+
+
+# --------------------------------------------------------------------------
+# argument checks
+# --------------------------------------------------------------------------
+
+def _directions(v, name: str) -> np.ndarray:
+    arr = as_array(v, name, ndim=2, last=3)
+    if arr.shape[0]:
+        length = np.sqrt(np.einsum("ij,ij->i", arr, arr))
+        bad = ~(np.abs(length - 1.0) <= _UNIT_TOL)
+        if np.any(bad):
+            raise ValueError(
+                f"{name} must hold unit vectors (|length - 1| <= {_UNIT_TOL}); "
+                f"row {int(np.argmax(bad))} has length {length[bad][0]!r}")
+    return arr
+
+
+def _pair(wo, wi):
+    wo = _directions(wo, "wo")
+    wi = _directions(wi, "wi")
+    if wo.shape != wi.shape:
+        raise ValueError(f"wo and wi must have the same shape (n, 3); got {wo.shape} and {wi.shape}")
+    return wo, wi
+
+
+def _rgb(value, name: str, *, upper: float | None = 1.0) -> np.ndarray:
+    """An RGB parameter: a scalar (grey) or three values, each in [0, upper]."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a number or 3 numbers (RGB); got bool")
+    arr = as_array(value, name)
+    if arr.ndim == 0:
+        arr = np.full(3, float(arr))
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must be a scalar or have shape (3,) (RGB); got shape {arr.shape}")
+    if not np.all(arr >= 0.0):
+        raise ValueError(f"{name} must be >= 0 in every channel; got {arr.tolist()}")
+    if upper is not None and not np.all(arr <= upper):
+        raise ValueError(f"{name} must be <= {upper} in every channel (energy conservation); got {arr.tolist()}")
+    return arr
+
+
+def _cosines(cos_i, name: str = "cos_i") -> np.ndarray:
+    c = as_array(cos_i, name)
+    if c.size and not np.all(np.abs(c) <= 1.0 + 1e-12):
+        raise ValueError(f"{name} must lie in [-1, 1]; got values in [{c.min()}, {c.max()}]")
+    return np.clip(c, -1.0, 1.0)
+
+
+def _alpha(a, name: str) -> float:
+    a = check_positive(a, name)
+    if not a <= 1.0:
+        raise ValueError(f"{name} (microfacet roughness) must lie in (0, 1]; got {a}")
+    return a
+
+
+# --------------------------------------------------------------------------
+# optics of one interface
+# --------------------------------------------------------------------------
+
+def reflect(w, normal=None) -> np.ndarray:
+    """Mirror direction of ``w`` about the normal (+y unless ``normal`` is given).
+
+    Parameters
+    ----------
+    w : array_like, shape (..., 3)
+        Directions pointing away from the surface.
+    normal : array_like, shape (..., 3), optional
+        Unit normals (e.g. microfacet half vectors); default +y.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``-w + 2 (w . n) n``, the lecture's 'Reflective Material' formula;
+        for ``n = +y`` simply ``(-x, y, -z)``.
+    """
+    w = as_array(w, "w", last=3)
+    if normal is None:
+        return w * _FLIP_XZ
+    n = as_array(normal, "normal", last=3)
+    return 2.0 * dot(w, n)[..., None] * n - w
+
+
+def refract(w, eta_i: float, eta_t: float):
+    """Refract ``w`` through a smooth interface with normal +y (Snell's law).
+
+    The medium of index ``eta_i`` lies on the +y side, ``eta_t`` on the -y
+    side. ``w`` points away from the surface on the side it lies on: if
+    ``w.y >= 0`` it is in ``eta_i`` and the result points into the -y side;
+    if ``w.y < 0`` the light comes from the ``eta_t`` side and the roles swap.
+
+    Returns
+    -------
+    wt : ndarray, shape (..., 3)
+        Unit refracted directions (pointing away from the surface, on the
+        other side). Where total internal reflection occurs, the mirror
+        direction ``reflect(w)`` instead (the lecture's edge case), never NaN.
+    tir : ndarray of bool, shape (...)
+        True where ``(eta_1 / eta_2)^2 (1 - cos^2 theta_1) > 1``.
+
+    Notes
+    -----
+    With ``r = eta_1 / eta_2``, ``c = |w.y|`` and ``s = sign(w.y)``:
+    ``cos theta_t = sqrt(1 - r^2 (1 - c^2))`` (lecture, 'Refractive Material')
+    and ``wt = -r w + (r c - cos theta_t) s y``.
+    """
+    w = as_array(w, "w", last=3)
+    eta_i = check_positive(eta_i, "eta_i")
+    eta_t = check_positive(eta_t, "eta_t")
+    s = np.where(w[..., 1] >= 0.0, 1.0, -1.0)
+    c = np.abs(w[..., 1])
+    r = np.where(s > 0, eta_i / eta_t, eta_t / eta_i)
+    sin2_t = r * r * np.maximum(0.0, 1.0 - c * c)
+    tir = sin2_t > 1.0
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin2_t))
+    wt = -r[..., None] * w
+    wt[..., 1] += (r * c - cos_t) * s
+    length = np.sqrt(np.maximum(dot(wt, wt), 1e-300))
+    wt = wt / length[..., None]
+    wt = np.where(tir[..., None], w * _FLIP_XZ, wt)
+    return wt, tir
+
+
+def critical_angle(eta_i: float, eta_t: float) -> float:
+    """Angle of incidence (radians) beyond which total internal reflection occurs.
+
+    Solves ``1 - (eta_i / eta_t)^2 (1 - cos^2 theta) = 0`` (lecture, 'Total
+    Internal Reflection'): ``theta_c = arcsin(eta_t / eta_i)``, 41.81 degrees
+    for glass (1.5) to air. Only defined for ``eta_i >= eta_t``; otherwise a
+    ``ValueError`` (light entering a denser medium is never totally reflected).
+    """
+    eta_i = check_positive(eta_i, "eta_i")
+    eta_t = check_positive(eta_t, "eta_t")
+    if not eta_i >= eta_t:
+        raise ValueError(
+            f"critical_angle needs eta_i >= eta_t (total internal reflection only happens "
+            f"going into a less dense medium); got eta_i={eta_i}, eta_t={eta_t}")
+    return float(np.arcsin(eta_t / eta_i))
+
+
+def brewster_angle(eta_i: float, eta_t: float) -> float:
+    """Brewster's angle ``arctan(eta_t / eta_i)`` (radians), where ``R_p = 0``."""
+    eta_i = check_positive(eta_i, "eta_i")
+    eta_t = check_positive(eta_t, "eta_t")
+    return float(np.arctan2(eta_t, eta_i))
+
+
+def _oriented(cos_i, eta_i, eta_t):
+    c = _cosines(cos_i)
+    eta_i = check_positive(eta_i, "eta_i")
+    eta_t = check_positive(eta_t, "eta_t")
+    back = c < 0.0
+    e1 = np.where(back, eta_t, eta_i)
+    e2 = np.where(back, eta_i, eta_t)
+    return np.abs(c), e1, e2
+
+
+def fresnel_dielectric(cos_i, eta_i: float, eta_t: float, *,
+                       polarization: Literal["unpolarized", "s", "p"] = "unpolarized") -> np.ndarray:
+    """Exact Fresnel reflectance of a smooth dielectric interface.
+
+    Parameters
+    ----------
+    cos_i : array_like
+        Cosine of the angle of incidence, measured on the side of ``eta_i``.
+        A negative value means the light arrives from the other side, so the
+        roles of ``eta_i`` and ``eta_t`` swap (the pbrt convention): the
+        function is correct from either side of the interface.
+    eta_i, eta_t : float
+        Refractive indices of the incident and transmitting media.
+    polarization : {'unpolarized', 's', 'p'}
+        ``R_s``, ``R_p`` or their average (unpolarized light).
+
+    Returns
+    -------
+    ndarray
+        Reflectance in [0, 1]; 1 beyond the critical angle; 0 everywhere when
+        ``eta_i == eta_t`` (no interface). ``T = 1 - R``.
+
+    Notes
+    -----
+    The lecture's 'Fresnel Coefficient' slide with non-magnetic media::
+
+        R_s = |(n1 cos_i - n2 cos_t) / (n1 cos_i + n2 cos_t)|^2
+        R_p = |(n1 cos_t - n2 cos_i) / (n1 cos_t + n2 cos_i)|^2
+
+    with ``cos_t`` from Snell's law. ``R_p = 0`` at Brewster's angle
+    ``arctan(n2 / n1)``; at normal incidence ``R = ((n1 - n2)/(n1 + n2))^2``.
+
+    References
+    ----------
+    .. [1] M. Born, E. Wolf, *Principles of Optics*, 7th ed., Cambridge
+       University Press, 1999, section 1.5.
+    """
+    check_choice(polarization, "polarization", ("unpolarized", "s", "p"))
+    c, e1, e2 = _oriented(cos_i, eta_i, eta_t)
+    if eta_i == eta_t:
+        return np.zeros_like(c)
+    sin2_t = (e1 / e2) ** 2 * (1.0 - c * c)
+    tir = sin2_t >= 1.0
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin2_t))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rs = (e1 * c - e2 * cos_t) / (e1 * c + e2 * cos_t)
+        rp = (e2 * c - e1 * cos_t) / (e2 * c + e1 * cos_t)
+    rs = np.where(tir, 1.0, rs * rs)
+    rp = np.where(tir, 1.0, rp * rp)
+    if polarization == "s":
+        return rs
+    if polarization == "p":
+        return rp
+    return 0.5 * (rs + rp)
+
+
+def fresnel_schlick(cos_i, eta_i: float, eta_t: float) -> np.ndarray:
+    """Schlick's approximation ``R0 + (1 - R0)(1 - cos)^5`` (lecture slide).
+
+    ``R0 = ((eta_i - eta_t) / (eta_i + eta_t))^2``. Same side convention as
+    :func:`fresnel_dielectric`. Going into a less dense medium the cosine of
+    the *transmitted* angle is used (and R = 1 under total internal
+    reflection), without which Schlick's formula misses the critical angle
+    entirely.
+
+    References
+    ----------
+    .. [1] C. Schlick, "An Inexpensive BRDF Model for Physically-based
+       Rendering", Computer Graphics Forum 13(3), 1994.
+    """
+    c, e1, e2 = _oriented(cos_i, eta_i, eta_t)
+    r0 = ((e1 - e2) / (e1 + e2)) ** 2
+    sin2_t = (e1 / e2) ** 2 * (1.0 - c * c)
+    tir = sin2_t >= 1.0
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin2_t))
+    x = np.where(e1 > e2, cos_t, c)
+    r = r0 + (1.0 - r0) * (1.0 - x) ** 5
+    return np.where(tir & (e1 > e2), 1.0, r)
+
+
+def fresnel_conductor(cos_i, eta, k) -> np.ndarray:
+    """Fresnel reflectance of a conductor with complex index ``eta + i k``.
+
+    Parameters
+    ----------
+    cos_i : array_like
+        Cosine of the angle of incidence (its absolute value is used: a
+        conductor is opaque, so only one side is lit).
+    eta, k : float or array_like, shape (c,)
+        Real and imaginary parts of the conductor's index relative to the
+        incident medium, per colour channel.
+
+    Returns
+    -------
+    ndarray, shape ``cos_i.shape + eta.shape``
+        Unpolarized reflectance in [0, 1].
+
+    Notes
+    -----
+    The dielectric formulas with a complex index ``n2 = eta + i k`` and a
+    complex ``cos_t = sqrt(1 - sin^2_i / n2^2)``; at normal incidence
+    ``R = ((eta - 1)^2 + k^2) / ((eta + 1)^2 + k^2)``. With ``k = 0`` it is
+    :func:`fresnel_dielectric` (total internal reflection included).
+
+    References
+    ----------
+    .. [1] M. Born, E. Wolf, *Principles of Optics*, 7th ed., 1999, section 14.2.
+    .. [2] M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*,
+       4th ed., 2023, section 9.3.
+    """
+    c = np.abs(_cosines(cos_i))
+    eta = as_array(eta, "eta")
+    k = as_array(k, "k")
+    if eta.shape != k.shape or eta.ndim > 1:
+        raise ValueError(f"eta and k must be scalars or 1-D arrays of the same shape; got {eta.shape} and {k.shape}")
+    if not (np.all(eta > 0) and np.all(k >= 0)):
+        raise ValueError(f"conductor index needs eta > 0 and k >= 0; got eta={eta.tolist()}, k={k.tolist()}")
+    if eta.ndim == 1:
+        c = c[..., None]
+    n2 = eta + 1j * k
+    cos_t = np.sqrt(1.0 - (1.0 - c * c) / (n2 * n2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        den_s = c + n2 * cos_t
+        den_p = n2 * c + cos_t
+        rs = np.where(den_s == 0, 0.0, np.abs((c - n2 * cos_t) / den_s) ** 2)
+        rp = np.where(den_p == 0, 0.0, np.abs((n2 * c - cos_t) / den_p) ** 2)
+    return np.clip(0.5 * (rs + rp), 0.0, 1.0)
+
+
+# --------------------------------------------------------------------------
+# BSDF objects
+# --------------------------------------------------------------------------
+
+class BSDFSample(NamedTuple):
+    """Result of :meth:`BSDF.sample`.
+
+    Attributes
+    ----------
+    wi : ndarray, shape (n, 3)
+        Sampled unit directions (pointing away from the surface).
+    weight : ndarray, shape (n, 3)
+        ``f |cos theta_i| / pdf`` (non-delta) or the chosen delta lobe's
+        throughput divided by its probability; 0 for a failed sample.
+    pdf : ndarray, shape (n,)
+        Per solid angle for non-delta samples; the discrete lobe probability
+        for delta samples; 0 for a failed sample.
+    """
+
+    wi: np.ndarray
+    weight: np.ndarray
+    pdf: np.ndarray
+
+
+class BSDF:
+    """Base class: argument checks around the three methods of the contract.
+
+    Subclasses implement ``_eval``, ``_pdf`` and ``_sample`` on checked
+    arrays; ``_sample`` returns ``(wi, weight, pdf, delta_mask)``. See the
+    module docstring for the conventions (normal +y, both directions pointing
+    away, measures of ``pdf``, delta lobes, lobe selection with ``u[:, 0]``).
+    """
+
+    #: every lobe is a Dirac delta (``eval`` and ``pdf`` are 0 everywhere)
+    is_delta: bool = False
+    #: at least one lobe is a Dirac delta (``eval``/``pdf`` omit it)
+    has_delta: bool = False
+
+    def eval(self, wo, wi) -> np.ndarray:
+        """BSDF value ``f(wo, wi)``, shape (n, 3) RGB, delta lobes excluded."""
+        wo, wi = _pair(wo, wi)
+        return self._eval(wo, wi)
+
+    def pdf(self, wo, wi) -> np.ndarray:
+        """Solid-angle density of ``sample`` for the non-delta part, shape (n,)."""
+        wo, wi = _pair(wo, wi)
+        return self._pdf(wo, wi)
+
+    def sample(self, wo, u, *, return_delta: bool = False):
+        """Draw ``wi`` given ``wo`` from uniform points ``u`` in [0, 1]^2.
+
+        Parameters
+        ----------
+        wo : array_like, shape (n, 3)
+            Unit outgoing directions in local space.
+        u : array_like, shape (n, 2)
+            Points in [0, 1]^2 (1.0 included): iid, stratified or QMC.
+        return_delta : bool
+            Also return a bool mask, shape (n,), True where the sample came
+            from a Dirac-delta lobe.
+
+        Returns
+        -------
+        BSDFSample
+            ``(wi, weight, pdf)``, plus the delta mask when asked for.
+        """
+        wo = _directions(wo, "wo")
+        u = as_unit_square(u, "u")
+        if u.shape[0] != wo.shape[0]:
+            raise ValueError(f"u must have one row per direction: wo has {wo.shape[0]} rows, u has {u.shape[0]}")
+        wi, weight, pdf, delta = self._sample(wo, u)
+        result = BSDFSample(wi, weight, pdf)
+        return (*result, delta) if return_delta else result
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={_fmt(v)}" for k, v in self._params().items())
+        return f"{type(self).__name__}({params})"
+
+    def _params(self) -> dict:
+        return {}
+
+    # helpers shared by the models ------------------------------------------------
+    @staticmethod
+    def _zeros(n: int):
+        return np.zeros((n, 3)), np.zeros(n)
+
+
+def _fmt(v):
+    if isinstance(v, np.ndarray):
+        return "(" + ", ".join(f"{x:g}" for x in v.tolist()) + ")"
+    if isinstance(v, float):
+        return f"{v:g}"
+    return repr(v)
+
+
+class Lambertian(BSDF):
+    """Ideal diffuse reflection ``f = albedo / pi`` (lecture, 'Lambertian Material').
+
+    Parameters
+    ----------
+    albedo : float or array_like, shape (3,)
+        Reflectance ``rho`` per channel, in [0, 1].
+
+    Notes
+    -----
+    Sampled with the cosine-weighted hemisphere (``pdf = cos theta_i / pi``),
+    so ``weight = f cos / pdf = albedo`` exactly: a zero-variance estimator of
+    the directional albedo, which is ``albedo`` for every ``wo``. One-sided:
+    0 unless ``wo.y > 0`` and ``wi.y > 0``.
+    """
+
+    def __init__(self, albedo=0.8):
+        self.albedo = _rgb(albedo, "albedo")
+
+    def _params(self):
+        return {"albedo": self.albedo}
+
+    def _eval(self, wo, wi):
+        ok = (wo[:, 1] > 0.0) & (wi[:, 1] > 0.0)
+        return np.where(ok[:, None], self.albedo / np.pi, 0.0)
+
+    def _pdf(self, wo, wi):
+        ok = (wo[:, 1] > 0.0) & (wi[:, 1] > 0.0)
+        return np.where(ok, square_to_cosine_hemisphere_pdf(wi), 0.0)
+
+    def _sample(self, wo, u):
+        wi = square_to_cosine_hemisphere(u)
+        pdf = np.where(wo[:, 1] > 0.0, square_to_cosine_hemisphere_pdf(wi), 0.0)
+        ok = (pdf > 0.0) & (wi[:, 1] > 0.0)
+        pdf = np.where(ok, pdf, 0.0)
+        weight = np.where(ok[:, None], self.albedo, 0.0)
+        return wi, weight, pdf, np.zeros(len(wo), dtype=bool)
+
+
+class Mirror(BSDF):
+    """Ideal specular reflection, a Dirac delta (lecture, 'Reflective Material').
+
+    ``wi = reflect(wo) = -wo + 2 (wo . n) n``; ``weight = reflectance`` and
+    ``pdf = 1`` (the only lobe). ``eval`` and ``pdf`` are 0 for every pair.
+
+    Parameters
+    ----------
+    reflectance : float or array_like, shape (3,)
+        Fraction reflected per channel, in [0, 1] (1: the lecture's ideal
+        mirror, nothing absorbed).
+    """
+
+    is_delta = True
+    has_delta = True
+
+    def __init__(self, reflectance=1.0):
+        self.reflectance = _rgb(reflectance, "reflectance")
+
+    def _params(self):
+        return {"reflectance": self.reflectance}
+
+    def _eval(self, wo, wi):
+        return np.zeros((len(wo), 3))
+
+    def _pdf(self, wo, wi):
+        return np.zeros(len(wo))
+
+    def _sample(self, wo, u):
+        ok = wo[:, 1] > 0.0
+        wi = wo * _FLIP_XZ
+        weight = np.where(ok[:, None], self.reflectance, 0.0)
+        return wi, weight, ok.astype(float), ok.copy()
+
+
+class Refractive(BSDF):
+    """Ideal refraction by Snell's law, a Dirac delta (lecture, 'Refractive Material').
+
+    The +y side is the outside (index 1), the -y side the inside (index
+    ``eta``); ``wo.y < 0`` means the ray is inside. Every sample refracts,
+    except under total internal reflection, where it reflects (the lecture's
+    edge case). No Fresnel reflection: see :class:`Glass` for that.
+
+    Parameters
+    ----------
+    eta : float
+        Index of the inside relative to the outside, > 0.
+    transmittance : float or array_like, shape (3,)
+        Tint of refracted light, in [0, 1]; total internal reflection is
+        lossless (weight 1).
+    """
+
+    is_delta = True
+    has_delta = True
+
+    def __init__(self, eta=1.5, transmittance=1.0):
+        self.eta = check_positive(eta, "eta")
+        self.transmittance = _rgb(transmittance, "transmittance")
+
+    def _params(self):
+        return {"eta": self.eta, "transmittance": self.transmittance}
+
+    def _eval(self, wo, wi):
+        return np.zeros((len(wo), 3))
+
+    def _pdf(self, wo, wi):
+        return np.zeros(len(wo))
+
+    def _sample(self, wo, u):
+        wi, tir = refract(wo, 1.0, self.eta)
+        weight = np.where(tir[:, None], 1.0, self.transmittance)
+        n = len(wo)
+        return wi, weight, np.ones(n), np.ones(n, dtype=bool)
+
+
+_FRESNEL_MODES = ("exact", "schlick")
+
+
+class Glass(BSDF):
+    """Smooth glass: Fresnel-weighted choice of reflection or refraction (lecture, 'Glass').
+
+    The lecture's code: refract; under total internal reflection reflect;
+    otherwise reflect with probability ``F`` and refract with ``1 - F``.
+    Choosing a lobe with the probability equal to its share of the energy
+    makes every weight 1 (times the lobe's tint): ``pdf`` is ``F`` or
+    ``1 - F`` (discrete lobe probabilities).
+
+    Parameters
+    ----------
+    eta : float
+        Index of the inside (-y side) relative to the outside (+y side).
+    fresnel : {'exact', 'schlick'} or float
+        How ``F`` is computed: :func:`fresnel_dielectric`,
+        :func:`fresnel_schlick`, or a constant in [0, 1] (the lecture's
+        'without Fresnel: constant reflection' picture; total internal
+        reflection still reflects everything).
+    reflectance, transmittance : float or array_like, shape (3,)
+        Tints of the two lobes, in [0, 1].
+
+    Notes
+    -----
+    The lobe is chosen by ``u[:, 0] < F`` (``F = 1`` always reflects, so
+    ``u0 = 1.0`` is safe); ``u[:, 1]`` is unused.
+    """
+
+    is_delta = True
+    has_delta = True
+
+    def __init__(self, eta=1.5, fresnel="exact", reflectance=1.0, transmittance=1.0):
+        self.eta = check_positive(eta, "eta")
+        if isinstance(fresnel, str):
+            check_choice(fresnel, "fresnel", _FRESNEL_MODES)
+        elif isinstance(fresnel, numbers.Real) and not isinstance(fresnel, (bool, np.bool_)):
+            fresnel = float(fresnel)
+            if not 0.0 <= fresnel <= 1.0:
+                raise ValueError(f"fresnel as a constant must lie in [0, 1]; got {fresnel}")
+        else:
+            raise TypeError(f"fresnel must be 'exact', 'schlick' or a number in [0, 1]; got {type(fresnel).__name__}")
+        self.fresnel = fresnel
+        self.reflectance = _rgb(reflectance, "reflectance")
+        self.transmittance = _rgb(transmittance, "transmittance")
+
+    def _params(self):
+        return {"eta": self.eta, "fresnel": self.fresnel}
+
+    def reflectance_probability(self, cos_o) -> np.ndarray:
+        """``F`` for outgoing cosines ``cos_o`` (negative: inside the glass)."""
+        cos_o = _cosines(cos_o, "cos_o")
+        if self.fresnel == "exact":
+            f = fresnel_dielectric(cos_o, 1.0, self.eta)
+        elif self.fresnel == "schlick":
+            f = fresnel_schlick(cos_o, 1.0, self.eta)
+        else:
+            f = np.full(cos_o.shape, self.fresnel)
+        c = np.abs(cos_o)
+        r = np.where(cos_o >= 0.0, 1.0 / self.eta, self.eta)
+        tir = r * r * (1.0 - c * c) > 1.0
+        return np.where(tir, 1.0, f)
+
+    def _eval(self, wo, wi):
+        return np.zeros((len(wo), 3))
+
+    def _pdf(self, wo, wi):
+        return np.zeros(len(wo))
+
+    def _sample(self, wo, u):
+        f = self.reflectance_probability(wo[:, 1])
+        wt, _ = refract(wo, 1.0, self.eta)
+        choose_r = (u[:, 0] < f) | (f >= 1.0)
+        wi = np.where(choose_r[:, None], wo * _FLIP_XZ, wt)
+        weight = np.where(choose_r[:, None], self.reflectance, self.transmittance)
+        pdf = np.where(choose_r, f, 1.0 - f)
+        return wi, weight, pdf, np.ones(len(wo), dtype=bool)
+
+
+# --------------------------------------------------------------------------
+# microfacet reflection (Walter et al. 2007; Heitz 2014)
+# --------------------------------------------------------------------------
+
+_DISTRIBUTIONS = ("ggx", "beckmann")
+
+
+def _smith_lambda(w, ax, ay, distribution):
+    """Smith's Lambda for direction(s) ``w`` above the surface (Heitz 2014, eqs. 72, 86)."""
+    cos2 = w[:, 1] ** 2
+    # alpha^2 tan^2(theta) for the alpha projected on w's azimuth
+    a2t2 = np.divide((ax * w[:, 0]) ** 2 + (ay * w[:, 2]) ** 2, cos2,
+                     out=np.full(len(w), np.inf), where=cos2 > 0.0)
+    if distribution == "ggx":
+        return 0.5 * (np.sqrt(1.0 + a2t2) - 1.0)         # inf at grazing
+    lam = np.where(np.isinf(a2t2), np.inf, 0.0)          # 0 at normal incidence
+    pos = np.isfinite(a2t2) & (a2t2 > 0.0)
+    a = 1.0 / np.sqrt(a2t2[pos])
+    lam[pos] = 0.5 * (erf(a) - 1.0) + np.exp(-a * a) / (2.0 * a * np.sqrt(np.pi))
+    return lam
+
+
+class Microfacet(BSDF):
+    """Glossy microfacet reflection (Cook-Torrance with GGX or Beckmann normals).
+
+    ``f = F(wo . h) D(h) G2(wo, wi) / (4 cos_o cos_i)`` with ``h`` the half
+    vector, ``D`` the normal distribution (Trowbridge-Reitz/GGX or Beckmann)
+    with roughness ``alpha_x`` along local x and ``alpha_y`` along local z,
+    ``G2 = 1 / (1 + Lambda(wo) + Lambda(wi))`` the height-correlated Smith
+    shadowing-masking, and Schlick's Fresnel with normal-incidence colour
+    ``reflectance``. ``alpha_y != alpha_x`` is anisotropic: rotating both
+    directions about the normal changes ``f``.
+
+    Parameters
+    ----------
+    alpha_x : float
+        Roughness (the NDF's ``alpha``, not squared) in (0, 1]; ``alpha -> 0``
+        approaches a mirror.
+    alpha_y : float, optional
+        Roughness along local z; default ``alpha_x`` (isotropic).
+    distribution : {'ggx', 'beckmann'}
+    reflectance : float or array_like, shape (3,)
+        Fresnel reflectance at normal incidence ``F0`` per channel, in [0, 1].
+
+    Notes
+    -----
+    Sampling draws a half vector ``h`` and reflects ``wo`` about it, so
+    ``pdf(wi) = p_h(h) / (4 |wo . h|)`` (Walter et al. 2007, eq. 14). GGX
+    draws ``h`` from the distribution of visible normals ``D_wo(h) = G1(wo)
+    |wo . h| D(h) / cos_o`` (Heitz 2018), giving ``weight = F G2 / G1(wo) <=
+    F``; Beckmann (isotropic only in ``mcvar.warps``) draws ``D(h) cos
+    theta_h``, giving ``weight = F G2 |wo . h| / (cos_o cos theta_h)``.
+    Samples reflected under the horizon fail (weight 0).
+
+    References
+    ----------
+    .. [1] B. Walter, S. Marschner, H. Li, K. Torrance, "Microfacet Models for
+       Refraction through Rough Surfaces", EGSR 2007.
+    .. [2] E. Heitz, "Understanding the Masking-Shadowing Function in
+       Microfacet-Based BRDFs", JCGT 3(2), 2014.
+    .. [3] R. Cook, K. Torrance, "A Reflectance Model for Computer Graphics",
+       ACM TOG 1(1), 1982.
+    .. [4] E. Heitz, "Sampling the GGX Distribution of Visible Normals",
+       JCGT 7(4), 2018.
+    """
+
+    def __init__(self, alpha_x=0.2, alpha_y=None, *,
+                 distribution: Literal["ggx", "beckmann"] = "ggx", reflectance=1.0):
+        self.alpha_x = _alpha(alpha_x, "alpha_x")
+        self.alpha_y = self.alpha_x if alpha_y is None else _alpha(alpha_y, "alpha_y")
+        self.distribution = check_choice(distribution, "distribution", _DISTRIBUTIONS)
+        if self.distribution == "beckmann" and self.alpha_x != self.alpha_y:
+            raise ValueError("anisotropic roughness (alpha_y != alpha_x) needs distribution='ggx'; "
+                             f"got beckmann with alpha_x={self.alpha_x}, alpha_y={self.alpha_y}")
+        self.reflectance = _rgb(reflectance, "reflectance")
+
+    @property
+    def anisotropic(self) -> bool:
+        """True when ``alpha_x != alpha_y``."""
+        return self.alpha_x != self.alpha_y
+
+    def _params(self):
+        return {"alpha_x": self.alpha_x, "alpha_y": self.alpha_y,
+                "distribution": self.distribution, "reflectance": self.reflectance}
+
+    def fresnel(self, cos_h) -> np.ndarray:
+        """Fresnel term at microfacet cosines ``cos_h``, shape ``(n, 3)``."""
+        c = np.clip(np.asarray(cos_h, dtype=np.float64), 0.0, 1.0)[:, None]
+        return self.reflectance + (1.0 - self.reflectance) * (1.0 - c) ** 5
+
+    # the normal distribution and its sampling (mcvar.warps) ----------------------
+    def _ndf(self, h):
+        """``D(h)``, from the warps' ``D(h) cos(theta_h)``."""
+        if self.distribution == "ggx":
+            dcos = square_to_ggx_pdf(h, self.alpha_x, self.alpha_y)
+        else:
+            dcos = square_to_beckmann_pdf(h, self.alpha_x)
+        return np.divide(dcos, h[:, 1], out=np.zeros(len(h)), where=h[:, 1] > 0.0)
+
+    def _h_pdf(self, h, wo_up):
+        """Density of the sampled half vector: visible normals (GGX) or ``D cos`` (Beckmann)."""
+        if self.distribution == "ggx":
+            return square_to_ggx_visible_pdf(h, wo_up, self.alpha_x, self.alpha_y)
+        return square_to_beckmann_pdf(h, self.alpha_x)
+
+    def _sample_h(self, u, wo_up):
+        if self.distribution == "ggx":
+            return square_to_ggx_visible(u, wo_up, self.alpha_x, self.alpha_y)
+        return square_to_beckmann(u, self.alpha_x)
+
+    def _lambda(self, w):
+        return _smith_lambda(w, self.alpha_x, self.alpha_y, self.distribution)
+
+    @staticmethod
+    def _upper(wo):
+        """``wo`` with rows below the horizon replaced by +y (they fail anyway)."""
+        return np.where((wo[:, 1] >= 0.0)[:, None], wo, np.array([0.0, 1.0, 0.0]))
+
+    @staticmethod
+    def _half(wo, wi):
+        h = wo + wi
+        length = np.sqrt(np.einsum("ij,ij->i", h, h))
+        return h / np.maximum(length, 1e-300)[:, None]
+
+    def _eval(self, wo, wi):
+        co, ci = wo[:, 1], wi[:, 1]
+        ok = (co > 0.0) & (ci > 0.0)
+        h = self._half(wo, wi)
+        g = 1.0 / (1.0 + self._lambda(wo) + self._lambda(wi))
+        value = np.divide(self._ndf(h) * g, 4.0 * co * ci, out=np.zeros(len(wo)), where=ok)
+        return self.fresnel(dot(wo, h)) * value[:, None]
+
+    def _pdf(self, wo, wi):
+        co, ci = wo[:, 1], wi[:, 1]
+        h = self._half(wo, wi)
+        oh = dot(wo, h)
+        ok = (co > 0.0) & (ci > 0.0) & (oh > 0.0)
+        return np.divide(self._h_pdf(h, self._upper(wo)), 4.0 * oh, out=np.zeros(len(wo)), where=ok)
+
+    def _sample(self, wo, u):
+        wo_up = self._upper(wo)
+        h = self._sample_h(u, wo_up)
+        oh = dot(wo, h)
+        wi = 2.0 * oh[:, None] * h - wo
+        wi /= np.sqrt(np.einsum("ij,ij->i", wi, wi))[:, None]
+        co, ci = wo[:, 1], wi[:, 1]
+        pdf = np.divide(self._h_pdf(h, wo_up), 4.0 * oh, out=np.zeros(len(wo)), where=oh > 0.0)
+        ok = (co > 0.0) & (ci > 0.0) & (oh > 0.0) & (pdf > 0.0)
+        lam_o = self._lambda(wo)
+        g2 = 1.0 / (1.0 + lam_o + self._lambda(wi))
+        if self.distribution == "ggx":      # f cos / pdf = F G2 / G1(wo)
+            scale = g2 * (1.0 + lam_o)
+        else:                               # f cos / pdf = F G2 |wo.h| / (cos_o cos_h)
+            scale = np.divide(g2 * oh, co * h[:, 1], out=np.zeros(len(wo)), where=ok)
+        weight = np.where(ok[:, None], self.fresnel(oh) * np.where(ok, scale, 0.0)[:, None], 0.0)
+        return wi, weight, np.where(ok, pdf, 0.0), np.zeros(len(wo), dtype=bool)
+
+
+class Conductor(Microfacet):
+    """A metal: conductor Fresnel with a complex index, smooth or rough.
+
+    ``alpha_x = 0`` (default) is a smooth metal, a Dirac delta like
+    :class:`Mirror` with ``weight = F(cos_o)`` per channel; ``alpha_x > 0``
+    is the :class:`Microfacet` model with :func:`fresnel_conductor` in place
+    of Schlick's approximation (blurred *and* tinted reflections: the
+    lecture's copper).
+
+    Parameters
+    ----------
+    eta, k : float or array_like, shape (3,)
+        Real and imaginary parts of the metal's index per RGB channel.
+    alpha_x, alpha_y, distribution
+        As in :class:`Microfacet`; ``alpha_x = 0`` means smooth.
+
+    See Also
+    --------
+    Conductor.preset : copper and gold from Johnson & Christy (1972).
+    """
+
+    def __init__(self, eta, k, *, alpha_x=0.0, alpha_y=None,
+                 distribution: Literal["ggx", "beckmann"] = "ggx"):
+        self.eta = _rgb(eta, "eta", upper=None)
+        self.k = _rgb(k, "k", upper=None)
+        if not np.all(self.eta > 0.0):
+            raise ValueError(f"eta must be > 0 in every channel; got {self.eta.tolist()}")
+        smooth = isinstance(alpha_x, numbers.Real) and not isinstance(alpha_x, (bool, np.bool_)) \
+            and float(alpha_x) == 0.0 and alpha_y in (None, 0, 0.0)
+        if smooth:
+            self.alpha_x = self.alpha_y = 0.0
+            self.distribution = check_choice(distribution, "distribution", _DISTRIBUTIONS)
+            self.is_delta = self.has_delta = True
+        else:
+            super().__init__(alpha_x, alpha_y, distribution=distribution)
+        self.reflectance = self.fresnel(np.ones(1))[0]
+
+    @classmethod
+    def preset(cls, name: Literal["copper", "gold"], *, alpha_x=0.0, alpha_y=None,
+               distribution: Literal["ggx", "beckmann"] = "ggx") -> "Conductor":
+        """Copper or gold with Johnson & Christy's (1972) indices at 659.5/548.6/450.9 nm.
+
+        References
+        ----------
+        .. [1] P. B. Johnson, R. W. Christy, "Optical Constants of the Noble
+           Metals", Physical Review B 6(12), 4370-4379, 1972, Table I.
+        """
+        check_choice(name, "name", tuple(_PRESETS))
+        data = _PRESETS[name]
+        return cls(data["eta"], data["k"], alpha_x=alpha_x, alpha_y=alpha_y, distribution=distribution)
+
+    def _params(self):
+        return {"eta": self.eta, "k": self.k, "alpha_x": self.alpha_x, "alpha_y": self.alpha_y,
+                "distribution": self.distribution}
+
+    def fresnel(self, cos_h) -> np.ndarray:
+        return fresnel_conductor(np.clip(np.asarray(cos_h, dtype=np.float64), 0.0, 1.0), self.eta, self.k)
+
+    def _eval(self, wo, wi):
+        if self.is_delta:
+            return np.zeros((len(wo), 3))
+        return super()._eval(wo, wi)
+
+    def _pdf(self, wo, wi):
+        if self.is_delta:
+            return np.zeros(len(wo))
+        return super()._pdf(wo, wi)
+
+    def _sample(self, wo, u):
+        if not self.is_delta:
+            return super()._sample(wo, u)
+        ok = wo[:, 1] > 0.0
+        weight = np.where(ok[:, None], self.fresnel(wo[:, 1]), 0.0)
+        return wo * _FLIP_XZ, weight, ok.astype(float), ok.copy()
+
+
+# --------------------------------------------------------------------------
+# plastic: a diffuse base under a smooth dielectric coat
+# --------------------------------------------------------------------------
+
+def _diffuse_fresnel_reflectance(eta: float, order: int = 96) -> float:
+    """Hemispherical average ``2 int_0^1 F(mu; 1 -> eta) mu dmu`` of the exact Fresnel term.
+
+    Gauss-Legendre on [0, 1]; from the outside (``eta >= 1``) the integrand is
+    smooth, so 96 nodes are exact to rounding.
+    """
+    x, w = np.polynomial.legendre.leggauss(order)
+    mu = 0.5 * (x + 1.0)
+    return float(np.sum(0.5 * w * 2.0 * mu * fresnel_dielectric(mu, 1.0, eta)))
+
+
+class Plastic(BSDF):
+    """Plastic: a Lambertian base under a smooth dielectric coat (mixed delta / diffuse).
+
+    Light either reflects specularly off the coat (a Dirac delta with weight
+    ``specular * F(cos_o)``), or enters it, scatters in the base, possibly
+    bounces between base and coat, and leaves; that diffuse part is::
+
+        f_d = (1 - F(cos_o)) (1 - F(cos_i)) rho / (pi eta^2 (1 - rho F_dr,int))
+
+    with ``F`` the exact Fresnel reflectance from outside and ``F_dr,int`` the
+    hemispherical-average internal reflectance. It is reciprocal, and the
+    directional albedo is exactly ``specular F_o + (1 - F_o) rho (1 -
+    F_dr,int) / (1 - rho F_dr,int) <= 1`` (the infinite series of internal
+    bounces summed). The lecture's plastic: flipped *and* averaged.
+
+    ``is_delta`` is False and ``has_delta`` True: ``eval`` and ``pdf`` are
+    the diffuse part only; next-event estimation uses them, and the specular
+    lobe is found only by ``sample``. The lobe is chosen with ``u[:, 0]``:
+    specular with probability ``P = s F_o / (s F_o + (1 - F_o) mean(rho_eff))``
+    (``s`` the mean specular tint), otherwise diffuse with ``u0`` rescaled to
+    ``(u0 - P) / (1 - P)`` and cosine-weighted sampling; the diffuse ``pdf``
+    (returned and given by ``pdf``) includes the factor ``1 - P``.
+
+    Parameters
+    ----------
+    diffuse : float or array_like, shape (3,)
+        Albedo ``rho`` of the base, in [0, 1].
+    eta : float
+        Index of the coat, >= 1.
+    specular : float or array_like, shape (3,)
+        Tint of the coat reflection, in [0, 1] (1 for a physical dielectric).
+
+    References
+    ----------
+    .. [1] A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces",
+       GRAPHITE 2007.
+    .. [2] W. Jakob et al., Mitsuba renderer documentation, 'Smooth plastic
+       material (plastic)', 2010-2022.
+    """
+
+    has_delta = True
+
+    def __init__(self, diffuse=0.5, *, eta=1.5, specular=1.0):
+        self.diffuse = _rgb(diffuse, "diffuse")
+        self.eta = check_positive(eta, "eta")
+        if not self.eta >= 1.0:
+            raise ValueError(f"eta of a plastic coat must be >= 1; got {self.eta}")
+        self.specular = _rgb(specular, "specular")
+        self.fdr_ext = _diffuse_fresnel_reflectance(self.eta)
+        #: hemispherical-average reflectance of the coat seen from inside,
+        #: from 1 - F_dr,int = (1 - F_dr,ext) / eta^2 (energy balance).
+        self.fdr_int = 1.0 - (1.0 - self.fdr_ext) / self.eta ** 2
+        #: the base's albedo after all internal bounces
+        self.effective_albedo = self.diffuse * (1.0 - self.fdr_int) / (1.0 - self.diffuse * self.fdr_int)
+        self._scale = self.effective_albedo / (np.pi * (1.0 - self.fdr_ext))
+
+    def _params(self):
+        return {"diffuse": self.diffuse, "eta": self.eta, "specular": self.specular}
+
+    def _fresnel(self, c):
+        return fresnel_dielectric(np.clip(c, 0.0, 1.0), 1.0, self.eta)
+
+    def specular_probability(self, cos_o) -> np.ndarray:
+        """Probability ``P`` of choosing the specular lobe for outgoing cosines ``cos_o``."""
+        f = self._fresnel(np.asarray(cos_o, dtype=np.float64))
+        a = np.mean(self.specular) * f
+        b = (1.0 - f) * np.mean(self.effective_albedo)
+        return np.divide(a, a + b, out=np.zeros_like(f), where=(a + b) > 0.0)
+
+    def _eval(self, wo, wi):
+        co, ci = wo[:, 1], wi[:, 1]
+        ok = (co > 0.0) & (ci > 0.0)
+        t = (1.0 - self._fresnel(co)) * (1.0 - self._fresnel(ci))
+        return np.where(ok[:, None], t[:, None] * self._scale, 0.0)
+
+    def _pdf(self, wo, wi):
+        co, ci = wo[:, 1], wi[:, 1]
+        ok = (co > 0.0) & (ci > 0.0)
+        p = self.specular_probability(co)
+        return np.where(ok, (1.0 - p) * square_to_cosine_hemisphere_pdf(wi), 0.0)
+
+    def _sample(self, wo, u):
+        co = wo[:, 1]
+        above = co > 0.0
+        f_o = self._fresnel(co)
+        p = self.specular_probability(co)
+        spec = u[:, 0] < p
+        u_d = np.column_stack([np.clip(np.divide(u[:, 0] - p, 1.0 - p, out=np.zeros(len(p)), where=p < 1.0),
+                                       0.0, 1.0), u[:, 1]])
+        wd = square_to_cosine_hemisphere(u_d)
+        ci = wd[:, 1]
+        pdf_d = (1.0 - p) * square_to_cosine_hemisphere_pdf(wd)
+        ok_d = above & ~spec & (ci > 0.0) & (pdf_d > 0.0)
+        t = np.divide((1.0 - f_o) * (1.0 - self._fresnel(ci)), 1.0 - p, out=np.zeros(len(p)), where=ok_d)
+        w_d = t[:, None] * self._scale * np.pi
+        w_s = np.divide(f_o, p, out=np.zeros(len(p)), where=p > 0.0)[:, None] * self.specular
+        ok_s = above & spec
+        wi = np.where(spec[:, None], wo * _FLIP_XZ, wd)
+        weight = np.where(ok_s[:, None], w_s, np.where(ok_d[:, None], w_d, 0.0))
+        pdf = np.where(ok_s, p, np.where(ok_d, pdf_d, 0.0))
+        return wi, weight, pdf, spec & above
