@@ -446,9 +446,10 @@ class ConfigMetrics:
         Mean wall time of one run (one estimate / image).
     efficiency : float
         ``1 / (mse * seconds)`` (``inf`` when the measured MSE is <= 0).
-    bias, bias_z, bias_dof, bias_pvalue : float
+    bias, bias_stderr, bias_z, bias_dof, bias_pvalue : float
         Bias of the element-mean (mean image value minus the reference's), its
-        Welch t statistic, degrees of freedom and two-sided p-value.
+        standard error, Welch t statistic, degrees of freedom and two-sided
+        p-value.
     bias_detected : bool
         ``bias_pvalue < alpha_family`` (Sidak-corrected over the method's
         configurations; see :func:`sweep`).
@@ -468,6 +469,7 @@ class ConfigMetrics:
     seconds: float
     efficiency: float
     bias: float
+    bias_stderr: float
     bias_z: float
     bias_dof: float
     bias_pvalue: float
@@ -517,8 +519,8 @@ def _config_metrics(method, sampler, spp, values, seconds, ref: Reference) -> Co
         z = 0.0 if diff == 0 else float(np.copysign(np.inf, diff))
         dof, p = float("inf"), (1.0 if diff == 0 else 0.0)
     return ConfigMetrics(method, sampler, int(spp), r, variance, float(stderr[0]), bias2,
-                         float(stderr[1]), mse, float(stderr[2]), rel, sec, eff, diff, float(z),
-                         dof, p)
+                         float(stderr[1]), mse, float(stderr[2]), rel, sec, eff, diff, float(se),
+                         float(z), dof, p)
 
 
 # --------------------------------------------------------------------------

@@ -1,0 +1,89 @@
+"""Tests of mcvar.report: the convergence report's files, numbers and page."""
+from __future__ import annotations
+
+import csv
+import re
+
+import numpy as np
+import pytest
+
+from mcvar import experiments as ex
+from mcvar import report
+from mcvar.cli import main
+from test_experiments import Counting, fake_target
+
+EXPECTED = {"html", "csv", "fits_csv", "variance", "mse_time", "bias", "efficiency", "images"}
+
+
+@pytest.fixture(scope="module")
+def fake_report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    target = fake_target(methods=("unbiased", "biased"), samplers=("random", "half"), spp=(1, 4, 16, 64))
+    paths = report.convergence_report(target, out, replicates=6, seed=31337, workers=1, progress=False)
+    return out, target, paths
+
+
+def test_report_writes_every_file(fake_report):
+    out, _, paths = fake_report
+    assert set(paths) == EXPECTED and list(paths)[0] == "html"
+    for path in paths.values():
+        assert path.parent == out and path.stat().st_size > 0
+    for key in EXPECTED - {"html", "csv", "fits_csv"}:
+        assert paths[key].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_html_is_self_contained_and_states_results(fake_report):
+    _, _, paths = fake_report
+    page = paths["html"].read_text()
+    sources = re.findall(r'src="([^"]*)"', page)
+    assert len(sources) == 5 and all(s.startswith("data:image/png;base64,") for s in sources)
+    assert "http" not in page.replace("http-equiv", "")  # nothing fetched from elsewhere
+    assert "<td>unbiased</td><td>both</td>" in page and "<td>biased</td><td>neither</td>" in page
+    assert "Sidak" in page and "± " in page
+
+
+def test_csv_holds_the_sweeps_numbers_and_the_table_is_ranked(fake_report):
+    out, target, paths = fake_report
+    with open(paths["csv"]) as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 2 * 2 * 4
+    # the same sweep again (all runs now cached) gives the same numbers as the CSV
+    again = ex.sweep(target, methods=("unbiased", "biased"), samplers=("random", "half"), replicates=6,
+                     seed=31337, workers=1, progress=False, cache_dir=out / ".cache")
+    assert again.computed == 0
+    for row, m in zip(rows, again.metrics):
+        assert (row["method"], row["sampler"], int(row["spp"])) == (m.method, m.sampler, m.spp)
+        assert float(row["mse"]) == m.mse and float(row["bias_pvalue"]) == m.bias_pvalue
+    # figure-of-merit table: ranks 1..n with MSE x time ascending
+    page = paths["html"].read_text()
+    table = page.split("Figure of merit")[1].split("</table>")[0]
+    foms = [float(r[4]) for r in re.findall(r"<tr><td>(\d+)</td><td>(\w+)</td><td>(\w+)</td>"
+                                            r"<td>(\d+)</td><td>([^<]+)</td>", table)]
+    assert len(foms) == 16 and foms == sorted(foms)
+    with open(paths["fits_csv"]) as fh:
+        fits = list(csv.DictReader(fh))
+    assert len(fits) == 4 and all(float(f["variance_slope_stderr"]) > 0 for f in fits)
+
+
+def test_rerun_resumes_from_the_cache(fake_report, tmp_path):
+    out, _, _ = fake_report
+    counting = Counting()
+    target = fake_target(evaluate=counting, methods=("unbiased", "biased"), samplers=("random", "half"),
+                         spp=(1, 4, 16, 64))
+    report.convergence_report(target, out, replicates=6, seed=31337, workers=1, progress=False)
+    assert counting.calls == 0
+
+
+def test_integrand_values_need_no_image_panel(tmp_path):
+    target = fake_target(evaluate=_scalar, exact=np.array([1.0]), reference_task=None)
+    paths = report.convergence_report(target, tmp_path, replicates=4, seed=7, workers=1, progress=False)
+    assert "images" not in paths and "N levels" in paths["html"].read_text()
+
+
+def _scalar(method, sampler, spp, rng):
+    return np.array([1.0 + rng.standard_normal() / np.sqrt(spp)])
+
+
+def test_cli_converge_reports_bad_target(capsys, tmp_path):
+    assert main(["converge", "no-such-target", "--out", str(tmp_path), "--quiet"]) == 2
+    assert "no-such-target" in capsys.readouterr().err
