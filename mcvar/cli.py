@@ -130,9 +130,15 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and write plots, a CSV of every number and a summary page.")
     p.add_argument("target", help="scene (cornell, cornell-spheres) or integrand (checkerboard, hemisphere, ...)")
     p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
-                   default=None, help="comma-separated integrators or estimators")
-    p.add_argument("--samplers", type=_name_list, default=None, help="comma-separated sampler names")
-    p.add_argument("--spp", type=_int_list, default=None, help="comma-separated spp (or N) levels")
+                   default=None, help="comma-separated integrators (scenes; 'path:3' stops paths at "
+                                      "depth 3, 'path' uses Russian roulette) or the problem's "
+                                      "estimators (integrands); default: path,path:2,direct or "
+                                      "every estimator")
+    p.add_argument("--samplers", type=_name_list, default=None,
+                   help="comma-separated sampler names (default random,jittered,sobol)")
+    p.add_argument("--spp", type=_int_list, default=None,
+                   help="comma-separated spp (or N) levels (default 1,4,16,64 for scenes, "
+                        "1,4,...,4096 for integrands)")
     p.add_argument("--replicates", type=int, default=8, help="independent replicates per level (default 8)")
     p.add_argument("--res", type=int, default=32, help="image resolution for scenes (default 32)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -141,8 +147,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_converge)
 
     p = sub.add_parser("demo", parents=[quiet], help="the default Cornell-box convergence report",
-                       description="Render the Cornell box with several integrators and samplers at "
-                                   "increasing spp and write the convergence report.")
+                       description="Render the Cornell box (32 x 32) with path tracing (Russian "
+                                   "roulette), path tracing stopped at depth 2 and direct lighting, "
+                                   "each with the random, jittered and Sobol samplers at 1, 4, 16 "
+                                   "and 64 spp, 8 replicates, and write the convergence report "
+                                   "(report.html, CSVs, PNGs). Re-running reuses finished runs.")
     p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
     p.set_defaults(func=_cmd_demo)
     return parser

@@ -205,7 +205,7 @@ def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, referen
     _scene(name)  # fail early on an unknown scene
     return Target(name=name, evaluate=partial(_scene_evaluate, name, res),
                   key=f"scene={name};res={res}",
-                  methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
+                  methods=("path", "path:2", "direct"), samplers=("random", "jittered", "sobol"),
                   spp=(1, 4, 16, 64),
                   reference_task=partial(_scene_reference, name, res, reference_integrator,
                                          reference_spp, "random"),
