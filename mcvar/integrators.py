@@ -1,0 +1,734 @@
+"""Integrators and the :func:`render` entry point (layer 5).
+
+Every integrator is a wavefront loop over the *bounces* of all paths of a batch
+at once: intersect every active ray, add emission, connect to a light, sample
+the BSDF, compact the survivors (``np.take``), repeat. There is no Python loop
+over rays or pixels; the only loops are over bounces, over the handful of
+materials of a scene and over spp batches.
+
+Integrators (the lecture's 'Previous Methods', 'Direct vs Indirect
+Illumination' and 'Multiple Importance Sampling' slides):
+
+=================  ==========================================================
+``direct``         one-bounce direct lighting, light sampling and BSDF
+                   sampling combined by MIS (``heuristic``: power or balance)
+``direct_light``   one-bounce direct lighting by light sampling only
+``direct_bsdf``    one-bounce direct lighting by BSDF sampling only
+``path``           path tracing with next-event estimation and MIS ('backward
+                   path tracing + connect to light'); Russian roulette when
+                   ``max_depth`` is None (unbiased), fixed depth otherwise
+                   (biased: longer paths are missing)
+``path_bsdf``      path tracing that finds emitters only by chance ('backward
+                   path tracing': fails for point lights, noisy for small ones)
+``albedo``         first-hit albedo (AOV)
+``normal``         first-hit world shading normal, facing the camera (AOV)
+``depth``          first-hit distance from the camera (AOV; 0 on a miss)
+``raster``         first hit shaded like a rasterizer: emission plus each area
+                   light as an unshadowed point light at its centre ('Direct vs
+                   Rasterization': one ray per sample, no shadows, no bounces)
+=================  ==========================================================
+
+Depth convention (CORNELL.md): a path of ``k`` segments has depth ``k``;
+``max_depth = 1`` shows emitters seen directly, ``2`` adds direct
+illumination, ``3`` one indirect bounce, and so on. The ``direct*``
+integrators are depth 2.
+"""
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Callable, Literal
+
+import numpy as np
+
+from ._validation import as_rng, check_choice, check_count
+from .estimators import balance_heuristic, power_heuristic
+from .geometry import Frame
+from .samplers import SAMPLERS, pixel_samples
+from .scene import Scene
+from .tracer import Tracer
+from .warps import area_to_solid_angle_pdf, square_to_uniform_parallelogram
+
+__all__ = ["INTEGRATORS", "HEURISTICS", "Render", "render", "trace_paths"]
+
+#: Integrator names accepted by :func:`render`.
+INTEGRATORS = ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf",
+               "albedo", "normal", "depth", "raster")
+#: MIS heuristics by name.
+HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
+_AOVS = ("albedo", "normal", "depth", "raster")
+#: Paths per spp batch when ``batch_spp`` is not given (bounds memory to ~100 MB).
+PATHS_PER_BATCH = 1 << 18
+#: Russian roulette starts once a path has this many segments.
+RR_START_DEPTH = 3
+#: Safety cap on the number of segments under Russian roulette: a path
+#: survives each step with probability <= 0.95, so reaching it has
+#: probability <= 0.95^1021 < 1e-22 (negligible bias).
+RR_MAX_DEPTH = 1024
+#: Sampler dimensions per path: pixel position (2), then light (2) and BSDF
+#: (2) samples of the first vertex; later vertices use iid random numbers.
+SAMPLER_DIM = 6
+
+
+@dataclass(frozen=True, eq=False)
+class Render:
+    """The result of :func:`render`.
+
+    Attributes
+    ----------
+    image : ndarray, shape (H, W, 3), float64
+        Mean linear radiance per pixel (row 0 at the top).
+    spp : int
+        Samples per pixel actually completed (fewer than asked if interrupted).
+    seconds : float
+        Wall-clock time.
+    interrupted : bool
+        True if Ctrl-C (``KeyboardInterrupt``) stopped the render early.
+    variance : ndarray, shape (H, W, 3), or None
+        Per-sample variance of each pixel's radiance (``ddof = 1``), None for
+        fewer than 2 spp. Under iid pixel sampling ``variance / spp`` is the
+        variance of the pixel mean; stratified and QMC samples are not
+        independent, so there it is only an upper-bound-like indicator.
+    rays : int
+        Rays traced (camera, extension and shadow rays).
+    scene, integrator, sampler, res, max_depth, heuristic, batch_spp, workers, precision
+        The settings used (``res`` is ``(W, H)``).
+    """
+
+    image: np.ndarray
+    spp: int
+    seconds: float
+    interrupted: bool
+    variance: np.ndarray | None
+    rays: int
+    scene: str
+    integrator: str
+    sampler: str
+    res: tuple
+    max_depth: int | None
+    heuristic: str
+    batch_spp: int
+    workers: int
+    precision: str
+
+    @property
+    def standard_error(self) -> np.ndarray | None:
+        """``sqrt(variance / spp)`` per pixel (iid model), or None."""
+        if self.variance is None:
+            return None
+        return np.sqrt(self.variance / self.spp)
+
+    @property
+    def paths_per_second(self) -> float:
+        """Camera paths (pixel samples) per second."""
+        w, h = self.res
+        return w * h * self.spp / self.seconds if self.seconds > 0 else float("nan")
+
+
+# ---------------------------------------------------------------------------
+# One wavefront of paths
+
+@dataclass(frozen=True)
+class _Mode:
+    nee: bool           # connect to lights (next-event estimation)
+    bsdf_hits: bool     # count emission found by BSDF sampling after the first segment
+    mis: bool           # weight the two strategies by the heuristic (else weight 1)
+    max_depth: int | None
+    heuristic: str
+
+
+_MODES = {
+    "direct": (True, True, True),
+    "direct_light": (True, False, False),
+    "direct_bsdf": (False, True, False),
+    "path": (True, True, True),
+    "path_bsdf": (False, True, False),
+}
+
+
+class _Shading:
+    """Per-scene constant tables used while shading (built once per batch)."""
+
+    def __init__(self, scene: Scene, tracer: Tracer):
+        self.scene = scene
+        self.tracer = tracer
+        self.eps = float(scene.ray_epsilon)
+        self.materials = scene.materials
+        # Glass-like materials know inside from outside by the sign of wo.y: never flip them.
+        self.two_sided = np.array([_flips(m) for m in scene.materials])
+        self.delta = np.array([bool(getattr(m, "is_delta", False)) for m in scene.materials])
+        self.light_area = scene.light_area
+        self.light_normal = scene.light_normal
+        self.env = scene.environment
+        self.n_emitters = scene.n_lights + (1 if self.env is not None else 0)
+        self.select_pdf = 1.0 / self.n_emitters if self.n_emitters else 0.0
+
+    def emission(self, prim, p, d):
+        """Emitted radiance towards ``-d`` of the hit primitives, (n, 3)."""
+        scene = self.scene
+        le = np.take(scene.prim_emission, prim, axis=0)
+        if not np.any(le):
+            return le
+        n_g = self.tracer.normals(prim, p)
+        front = np.einsum("ij,ij->i", n_g, d) < 0.0
+        le = np.where((front | np.take(scene.prim_two_sided_emission, prim))[:, None], le, 0.0)
+        if scene.checker_period is not None:
+            c = (np.floor(p[:, 0] / scene.checker_period) + np.floor(p[:, 2] / scene.checker_period)) % 2.0
+            le = le * c[:, None]
+        return le
+
+    def light_pdf_hit(self, prim, origins, points):
+        """Solid-angle density with which NEE would have drawn these emitter hits."""
+        light = np.take(self.scene.prim_light, prim)
+        pdf = np.zeros(prim.shape[0])
+        is_light = light >= 0
+        if np.any(is_light):
+            li = light[is_light]
+            pdf_area = self.select_pdf / np.take(self.light_area, li)
+            pdf[is_light] = area_to_solid_angle_pdf(pdf_area, origins[is_light], points[is_light],
+                                                    np.take(self.light_normal, li, axis=0))
+        return pdf
+
+    def sample_emitters(self, p, u):
+        """Next-event estimation: a point on an emitter for every shading point.
+
+        Returns ``(wi, dist, le, pdf)``: unit world direction, distance (inf
+        for the environment), emitted radiance towards ``p`` and the solid
+        angle density (0 where the sample cannot contribute).
+        """
+        n = p.shape[0]
+        n_em = self.n_emitters
+        scene = self.scene
+        u = np.array(u, dtype=np.float64)
+        if n_em > 1:
+            k = np.minimum((u[:, 0] * n_em).astype(np.int64), n_em - 1)
+            u[:, 0] = np.clip(u[:, 0] * n_em - k, 0.0, 1.0)
+        else:
+            k = np.zeros(n, dtype=np.int64)
+        wi = np.zeros((n, 3))
+        wi[:, 1] = 1.0
+        dist = np.full(n, np.inf)
+        le = np.zeros((n, 3))
+        pdf = np.zeros(n)
+        on_light = k < scene.n_lights
+        if np.any(on_light):
+            li = k[on_light]
+            x = square_to_uniform_parallelogram(u[on_light], np.take(scene.light_origin, li, axis=0),
+                                                np.take(scene.light_edge1, li, axis=0),
+                                                np.take(scene.light_edge2, li, axis=0))
+            v = x - p[on_light]
+            d2 = np.einsum("ij,ij->i", v, v)
+            r = np.sqrt(d2)
+            w = v / np.maximum(r, 1e-300)[:, None]
+            cos_l = -np.einsum("ij,ij->i", np.take(self.light_normal, li, axis=0), w)
+            front = cos_l > 0.0
+            pa = self.select_pdf / np.take(self.light_area, li)
+            pdf_l = np.where(front, area_to_solid_angle_pdf(pa, p[on_light], x, np.take(self.light_normal, li, axis=0)), 0.0)
+            wi[on_light] = w
+            dist[on_light] = r
+            le[on_light] = np.where(front[:, None], np.take(scene.light_radiance, li, axis=0), 0.0)
+            pdf[on_light] = pdf_l
+        if self.env is not None and not np.all(on_light):
+            sel = ~on_light
+            w_env, pdf_env = self.env.sample(u[sel])
+            wi[sel] = w_env
+            le[sel] = self.env.radiance(w_env)
+            pdf[sel] = self.select_pdf * pdf_env
+        return wi, dist, le, pdf
+
+    def environment(self, d):
+        return self.env.radiance(d)
+
+    def environment_pdf(self, d):
+        return self.select_pdf * self.env.pdf(d)
+
+
+def _flips(material) -> bool:
+    """Whether the caller flips the shading normal towards ``wo`` (two-sided)."""
+    from .bsdf import Glass, Refractive
+
+    return not isinstance(material, (Glass, Refractive))
+
+
+def _by_material(mat, n_materials):
+    """Index arrays of the rows using each material (a loop over materials, not rays)."""
+    order = np.argsort(mat, kind="stable")
+    counts = np.bincount(mat, minlength=n_materials)
+    return np.split(order, np.cumsum(counts)[:-1])
+
+
+def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path",
+                max_depth: int | None = None, heuristic: str = "power", rng=None,
+                tracer: Tracer | None = None):
+    """Radiance carried back along each camera ray: the wavefront core of :func:`render`.
+
+    Parameters
+    ----------
+    scene : Scene
+    origins, directions : ndarray, shape (n, 3)
+        Camera rays (unit directions).
+    u : ndarray, shape (n, k), k >= 2
+        Sample dimensions of the first vertex: ``u[:, 0:2]`` the light
+        sample, ``u[:, 2:4]`` the BSDF sample (missing ones are drawn from
+        ``rng``). Later vertices use ``rng``.
+    integrator : str
+        One of the light-transport integrators (not the AOVs).
+    max_depth : int or None
+        Maximum number of path segments; None: Russian roulette.
+    heuristic : {'power', 'balance'}
+    rng : Generator-like
+    tracer : Tracer, optional
+        Reuse a tracer (its precision); default float32.
+
+    Returns
+    -------
+    radiance : ndarray, shape (n, 3), float64
+    rays : int
+        Rays traced (including the camera rays and shadow rays).
+
+    Notes
+    -----
+    At vertex ``x_k`` (hit by segment ``k``) with throughput ``beta``:
+
+    * emission ``Le(x_k -> x_{k-1})`` is added with weight 1 for ``k = 1``
+      or after a delta bounce, else with the MIS weight
+      ``w(p_bsdf, p_light)`` (0 for ``direct_light``);
+    * NEE (if ``k + 1 <= max_depth``): an emitter point drawn with density
+      ``p_light`` (area density converted to solid angle,
+      ``p_A r^2 / |cos theta_l|``), one shadow ray, adding
+      ``beta f cos Le w(p_light, p_bsdf) / p_light``;
+    * the BSDF is sampled, ``beta *= f cos / p_bsdf``; with Russian roulette
+      a path survives with ``q = min(0.95, max(beta))`` and ``beta /= q``.
+
+    The shading normal of two-sided materials is flipped to face ``wo``
+    before the BSDF is called (local frame: normal +y). This is the one-sample
+    MIS estimator of Veach and Guibas [1]_ (eq. 8); with ``w = 1`` for one
+    strategy and 0 for the other it reduces to that single strategy.
+
+    References
+    ----------
+    .. [1] E. Veach, L. J. Guibas, "Optimally Combining Sampling Techniques for
+       Monte Carlo Rendering", SIGGRAPH 1995.
+    .. [2] M. Pharr, W. Jakob, G. Humphreys, "Physically Based Rendering:
+       From Theory to Implementation", 4th ed., MIT Press 2023, ch. 13.
+    """
+    check_choice(integrator, "integrator", tuple(_MODES))
+    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
+    rng = as_rng(rng)
+    nee, bsdf_hits, mis = _MODES[integrator]
+    if integrator.startswith("direct"):
+        max_depth = 2
+    weight_fn = HEURISTICS[heuristic]
+    tracer = tracer if tracer is not None else Tracer(scene)
+    sh = _Shading(scene, tracer)
+    nee = nee and sh.n_emitters > 0
+    o = np.asarray(origins, dtype=np.float64)
+    d = np.asarray(directions, dtype=np.float64)
+    n = o.shape[0]
+    u = np.asarray(u, dtype=np.float64)
+    radiance = np.zeros((n, 3))
+    idx = np.arange(n)
+    beta = np.ones((n, 3))
+    prev_pdf = np.full(n, np.inf)          # inf: camera ray or delta bounce (MIS weight 1)
+    rays = 0
+    limit = RR_MAX_DEPTH if max_depth is None else max_depth
+    k = 0
+    while idx.size and k < limit:
+        k += 1
+        hit = tracer.intersect(o, d)
+        rays += idx.size
+        t, prim = hit.t, hit.prim
+        found = prim >= 0
+        # -- rays that left the scene: environment emission
+        if sh.env is not None and not np.all(found):
+            miss = ~found
+            le = sh.environment(d[miss])
+            w = _emission_weight(k, prev_pdf[miss], lambda: sh.environment_pdf(d[miss]),
+                                 nee, bsdf_hits, mis, weight_fn)
+            radiance[idx[miss]] += beta[miss] * le * w[:, None]
+        keep = np.flatnonzero(found)
+        idx, o, d, t, prim = idx[keep], np.take(o, keep, 0), np.take(d, keep, 0), t[keep], prim[keep]
+        beta, prev_pdf = np.take(beta, keep, 0), prev_pdf[keep]
+        if idx.size == 0:
+            break
+        p = o + t[:, None] * d
+        # -- emission at the hit
+        le = sh.emission(prim, p, d)
+        lit = np.flatnonzero(np.any(le > 0, axis=1))
+        if lit.size:
+            w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], o[lit], p[lit]),
+                                 nee, bsdf_hits, mis, weight_fn)
+            radiance[idx[lit]] += beta[lit] * le[lit] * w[:, None]
+        if k >= limit:
+            break
+        # -- shading frame: flip two-sided materials' normal towards wo
+        mat = np.take(scene.prim_material, prim)
+        n_g = tracer.normals(prim, p)
+        wo = -d
+        cos_o = np.einsum("ij,ij->i", n_g, wo)
+        flip = np.take(sh.two_sided, mat) & (cos_o < 0.0)
+        n_s = np.where(flip[:, None], -n_g, n_g)
+        frame = Frame(n_s)
+        wo_l = frame.to_local(wo)
+        m = idx.size
+        if k == 1 and u.shape[1] >= 4:
+            u_light, u_bsdf = u[idx, 0:2], u[idx, 2:4]
+        else:
+            r = rng.random((m, 4))
+            u_light, u_bsdf = r[:, 0:2], r[:, 2:4]
+        groups = _by_material(mat, len(sh.materials))
+        # -- next-event estimation (adds paths of k + 1 segments)
+        if nee and k + 1 <= limit:
+            cand = np.flatnonzero(~np.take(sh.delta, mat))
+            if cand.size:
+                rays += _next_event(sh, tracer, cand, p, n_g, frame, wo_l, mat, beta, u_light,
+                                    radiance, idx, mis, weight_fn)
+        # -- continue the path by BSDF sampling?
+        if k + 1 > limit or (k + 1 == limit and not bsdf_hits):
+            break
+        wi_l = np.zeros((m, 3))
+        weight = np.zeros((m, 3))
+        pdf = np.zeros(m)
+        for mi, rows in enumerate(groups):
+            if rows.size == 0:
+                continue
+            s = sh.materials[mi].sample(wo_l[rows], u_bsdf[rows])
+            wi_l[rows], weight[rows], pdf[rows] = s.wi, s.weight, s.pdf
+        delta = np.take(sh.delta, mat)
+        pdf = np.where(delta, np.inf, pdf)
+        beta = beta * weight
+        wi = frame.to_world(wi_l)
+        alive = np.any(beta > 0.0, axis=1)
+        if max_depth is None and k >= RR_START_DEPTH:
+            q = np.minimum(beta.max(axis=1), 0.95)
+            survive = rng.random(m) < q
+            beta = beta / np.where(survive, q, 1.0)[:, None]
+            alive &= survive
+        keep = np.flatnonzero(alive)
+        side = np.sign(np.einsum("ij,ij->i", wi, n_g))
+        o = p + (sh.eps * side)[:, None] * n_g
+        idx, o, d = idx[keep], np.take(o, keep, 0), np.take(wi, keep, 0)
+        beta, prev_pdf = np.take(beta, keep, 0), pdf[keep]
+    return radiance, rays
+
+
+def _emission_weight(k, prev_pdf, light_pdf, nee, bsdf_hits, mis, weight_fn):
+    """MIS weight of emission found by the ray of segment ``k`` (BSDF sampling)."""
+    n = prev_pdf.shape[0]
+    if k == 1:
+        return np.ones(n)
+    delta = np.isinf(prev_pdf)
+    if not bsdf_hits:
+        # Light sampling alone cannot draw emission seen through a delta bounce;
+        # emission after a smooth bounce was already counted by NEE.
+        return np.zeros(n)
+    if not (nee and mis):
+        return np.ones(n)
+    w = weight_fn(prev_pdf, light_pdf())
+    return np.where(delta, 1.0, w)
+
+
+def _next_event(sh, tracer, cand, p, n_g, frame, wo_l, mat, beta, u_light, radiance, idx, mis, weight_fn):
+    """Connect the shading points ``cand`` to an emitter; add the unoccluded contributions."""
+    wi, dist, le, pdf_l = sh.sample_emitters(p[cand], u_light[cand])
+    wi_l = _to_local_rows(frame, cand, wi)
+    mat_c = mat[cand]
+    f = np.zeros((cand.size, 3))
+    pdf_b = np.zeros(cand.size)
+    for mi, rows in enumerate(_by_material(mat_c, len(sh.materials))):
+        if rows.size == 0 or sh.delta[mi]:
+            continue
+        f[rows] = sh.materials[mi].eval(wo_l[cand[rows]], wi_l[rows])
+        if mis:
+            pdf_b[rows] = sh.materials[mi].pdf(wo_l[cand[rows]], wi_l[rows])
+    cos_i = np.abs(wi_l[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        contrib = np.take(beta, cand, 0) * f * le * (cos_i / np.where(pdf_l > 0, pdf_l, np.inf))[:, None]
+    if mis:
+        contrib *= weight_fn(pdf_l, pdf_b)[:, None]
+    go = np.flatnonzero(np.any(contrib > 0.0, axis=1))
+    if go.size == 0:
+        return 0
+    pc = p[cand[go]]
+    ng = n_g[cand[go]]
+    w = wi[go]
+    side = np.sign(np.einsum("ij,ij->i", w, ng))
+    origin = pc + (sh.eps * side)[:, None] * ng
+    tmax = dist[go] - 2.0 * sh.eps
+    blocked = tracer.occluded(origin, w, tmax)
+    vis = go[~blocked]
+    radiance[idx[cand[vis]]] += contrib[vis]
+    return int(go.size)
+
+
+def _to_local_rows(frame: Frame, rows, v) -> np.ndarray:
+    """``v`` (world) in the local frames of ``rows`` of ``frame``."""
+    s, n, t = frame.s[rows], frame.n[rows], frame.t[rows]
+    return np.stack([np.einsum("ij,ij->i", v, s), np.einsum("ij,ij->i", v, n),
+                     np.einsum("ij,ij->i", v, t)], axis=1)
+
+
+# ---------------------------------------------------------------------------
+# First-hit modes (AOVs and the rasterization-like shading)
+
+def _first_hit(scene: Scene, tracer: Tracer, o, d, mode: str):
+    """One ray per sample: albedo, normal, depth or rasterizer-like shading."""
+    n = o.shape[0]
+    hit = tracer.intersect(o, d)
+    out = np.zeros((n, 3))
+    rows = np.flatnonzero(hit.prim >= 0)
+    if mode == "raster" and scene.environment is not None and rows.size < n:
+        miss = hit.prim < 0
+        out[miss] = scene.environment.radiance(d[miss])
+    if rows.size == 0:
+        return out
+    prim, t = hit.prim[rows], hit.t[rows]
+    p = o[rows] + t[:, None] * d[rows]
+    if mode == "depth":
+        out[rows] = t[:, None]
+        return out
+    n_g = tracer.normals(prim, p)
+    facing = np.einsum("ij,ij->i", n_g, d[rows]) < 0.0
+    n_s = np.where(facing[:, None], n_g, -n_g)
+    if mode == "normal":
+        out[rows] = n_s
+        return out
+    mat = np.take(scene.prim_material, prim)
+    albedo = np.array([_material_albedo(m) for m in scene.materials]).reshape(-1, 3)
+    alb = np.take(albedo, mat, axis=0)
+    if mode == "albedo":
+        out[rows] = alb
+        return out
+    # raster: emission + unshadowed point-light approximation of each area light
+    sh = _Shading(scene, tracer)
+    value = sh.emission(prim, p, d[rows])
+    for li in range(scene.n_lights):
+        c = scene.light_origin[li] + 0.5 * (scene.light_edge1[li] + scene.light_edge2[li])
+        v = c - p
+        r2 = np.einsum("ij,ij->i", v, v)
+        w = v / np.sqrt(r2)[:, None]
+        cos_s = np.maximum(np.einsum("ij,ij->i", w, n_s), 0.0)
+        cos_l = np.maximum(-w @ sh.light_normal[li], 0.0)
+        e = scene.light_radiance[li] * sh.light_area[li]
+        value += (alb / np.pi) * e[None, :] * (cos_s * cos_l / r2)[:, None]
+    out[rows] = value
+    return out
+
+
+def _material_albedo(material) -> np.ndarray:
+    """Albedo AOV of a material: Lambertian albedo, else its reflectance tint."""
+    for attr in ("albedo", "reflectance"):
+        if hasattr(material, attr):
+            return np.broadcast_to(np.asarray(getattr(material, attr), dtype=np.float64), (3,))
+    return np.ones(3)
+
+
+# ---------------------------------------------------------------------------
+# Batches and render()
+
+@dataclass(frozen=True)
+class _Job:
+    scene: Scene
+    integrator: str
+    sampler: str
+    res: tuple
+    max_depth: int | None
+    heuristic: str
+    precision: str
+
+
+def _render_batch(job: _Job, spp: int, rng):
+    """Render ``spp`` samples of every pixel; return (sum, sum of squares, rays)."""
+    w, h = job.res
+    n_pix = w * h
+    scene = job.scene
+    tracer = Tracer(scene, dtype=job.precision)
+    aov = job.integrator in _AOVS
+    u = pixel_samples(job.sampler, n_pix, spp, dim=2 if aov else SAMPLER_DIM, rng=rng)
+    u = u.reshape(n_pix * spp, -1)
+    pixel = np.repeat(np.arange(n_pix), spp)
+    d = scene.camera.ray_directions(job.res, pixel, u[:, 0:2])
+    o = np.broadcast_to(scene.camera.position, d.shape)
+    if aov:
+        radiance = _first_hit(scene, tracer, np.ascontiguousarray(o), d, job.integrator)
+        rays = n_pix * spp
+    else:
+        radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=job.integrator,
+                                     max_depth=job.max_depth, heuristic=job.heuristic,
+                                     rng=rng, tracer=tracer)
+    if not np.all(np.isfinite(radiance)):
+        raise FloatingPointError(f"{job.integrator} produced non-finite radiance (a bug, please report)")
+    per_pixel = radiance.reshape(n_pix, spp, 3)
+    return per_pixel.sum(axis=1), np.einsum("psc,psc->pc", per_pixel, per_pixel), rays
+
+
+def _as_res(res) -> tuple:
+    if isinstance(res, (int, np.integer)) and not isinstance(res, (bool, np.bool_)):
+        r = check_count(res, "res")
+        return (r, r)
+    if isinstance(res, (tuple, list)) and len(res) == 2:
+        return (check_count(res[0], "res[0] (width)"), check_count(res[1], "res[1] (height)"))
+    raise TypeError(f"res must be an int (square image) or a (width, height) pair; got {res!r}")
+
+
+def _batch_sizes(spp: int, n_pix: int, batch_spp, sampler: str) -> list[int]:
+    if batch_spp is None:
+        if n_pix * spp <= PATHS_PER_BATCH:
+            b = spp
+        else:
+            b = max(1, PATHS_PER_BATCH // n_pix)
+            base = 4 if sampler in ("grid", "jittered") else 2   # keep squares / powers of two
+            b = base ** int(math.log(b, base) + 1e-9)
+    else:
+        b = check_count(batch_spp, "batch_spp")
+    b = min(b, spp)
+    sizes = [b] * (spp // b)
+    if spp % b:
+        sizes.append(spp % b)
+    return sizes
+
+
+def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sampler: str = "random",
+           rng=None, max_depth: int | None = None, heuristic: str = "power", batch_spp: int | None = None,
+           workers: int = 1, progress: bool | Callable[[int, int], None] = False,
+           precision: Literal["float32", "float64"] = "float32") -> Render:
+    """Render ``scene`` with one integrator: the mean radiance of ``spp`` samples per pixel.
+
+    Parameters
+    ----------
+    scene : Scene
+        From :func:`mcvar.scene.load_scene`.
+    integrator : str
+        One of :data:`INTEGRATORS` (see the module docstring).
+    spp : int
+        Samples per pixel, >= 1.
+    res : int or (int, int)
+        Square side, or ``(width, height)``.
+    sampler : str
+        A sampler of :data:`mcvar.samplers.SAMPLERS`: pixel positions and the
+        light and BSDF samples of the first vertex come from it (per pixel,
+        dimension 6), later vertices use iid numbers.
+    rng : None, int, SeedSequence or Generator
+        The same seed gives the same image, for any ``workers``.
+    max_depth : int or None
+        Maximum path segments for ``path`` and ``path_bsdf`` (1 = emitters
+        seen directly, 2 = + direct light, ...; fixed depth is biased); None:
+        Russian roulette (unbiased). The ``direct*`` integrators are depth 2
+        (None or 2 accepted).
+    heuristic : {'power', 'balance'}
+        MIS weights (Veach's power heuristic with beta = 2, or balance).
+    batch_spp : int, optional
+        Samples per pixel per batch; default: all of them if the batch holds at
+        most :data:`PATHS_PER_BATCH` paths, else a power of two (of four for
+        grid / jittered) that fits. Stratified and QMC samplers stratify
+        within a batch; batches are independent randomizations.
+    workers : int
+        Processes that render batches in parallel (NumPy uses one core).
+        The image is the same as with ``workers=1``.
+    progress : bool or callable
+        True: a tqdm progress bar; a callable is called as
+        ``progress(spp_done, spp_total)`` after each batch.
+    precision : {'float32', 'float64'}
+        Ray-geometry precision of the intersection tests (radiance is always
+        accumulated in float64).
+
+    Returns
+    -------
+    Render
+        The image (H, W, 3), float64 linear radiance, row 0 at the top, with
+        spp completed, wall time, per-pixel sample variance and the settings.
+
+    Notes
+    -----
+    Batch ``b`` draws from stream ``b`` of ``as_rng(rng).spawn(n_batches)``;
+    batch results are summed in batch order, so the image does not depend on
+    how batches are spread over processes. Ctrl-C (``KeyboardInterrupt``,
+    also when raised by a ``progress`` callback) stops the render and returns
+    the batches finished so far with ``interrupted=True``.
+
+    Examples
+    --------
+    >>> from mcvar.scene import load_scene
+    >>> r = render(load_scene("cornell"), spp=2, res=8, rng=1)
+    >>> r.image.shape, r.spp
+    ((8, 8, 3), 2)
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
+    integrator = check_choice(integrator, "integrator", INTEGRATORS)
+    sampler = check_choice(sampler, "sampler", tuple(SAMPLERS))
+    heuristic = check_choice(heuristic, "heuristic", tuple(HEURISTICS))
+    precision = check_choice(precision, "precision", ("float32", "float64"))
+    spp = check_count(spp, "spp")
+    size = _as_res(res)
+    workers = check_count(workers, "workers")
+    if max_depth is not None:
+        max_depth = check_count(max_depth, "max_depth")
+        if integrator.startswith("direct") and max_depth != 2:
+            raise ValueError(f"max_depth must be None or 2 for {integrator!r} (one-bounce direct "
+                             f"lighting); got {max_depth}")
+        if integrator in _AOVS:
+            raise ValueError(f"max_depth does not apply to the first-hit mode {integrator!r}; got {max_depth}")
+    n_pix = size[0] * size[1]
+    sizes = _batch_sizes(spp, n_pix, batch_spp, sampler)
+    streams = as_rng(rng).spawn(len(sizes))
+    job = _Job(scene, integrator, sampler, size, max_depth, heuristic, precision)
+
+    total = np.zeros((n_pix, 3))
+    total_sq = np.zeros((n_pix, 3))
+    done = 0
+    rays = 0
+    interrupted = False
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=spp, unit="spp", desc=f"{scene.name} {integrator}", leave=False)
+    callback = progress if callable(progress) else None
+    start = time.perf_counter()
+
+    def collect(result, k):
+        nonlocal total, total_sq, done, rays
+        s, sq, r = result
+        total += s
+        total_sq += sq
+        rays += r
+        done += sizes[k]
+        if bar is not None:
+            bar.update(sizes[k])
+        if callback is not None:
+            callback(done, spp)
+
+    pool = None
+    try:
+        if workers == 1 or len(sizes) == 1:
+            for k, (b, stream) in enumerate(zip(sizes, streams)):
+                collect(_render_batch(job, b, stream), k)
+        else:
+            pool = ProcessPoolExecutor(max_workers=min(workers, len(sizes)))
+            futures = [pool.submit(_render_batch, job, b, stream) for b, stream in zip(sizes, streams)]
+            for k, fut in enumerate(futures):
+                collect(fut.result(), k)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=not interrupted, cancel_futures=True)
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - start
+    w, h = size
+    if done:
+        image = (total / done).reshape(h, w, 3)
+    else:
+        image = np.zeros((h, w, 3))
+    variance = None
+    if done >= 2:
+        var = (total_sq - total * total / done) / (done - 1)
+        variance = np.maximum(var, 0.0).reshape(h, w, 3)
+    return Render(image=image, spp=done, seconds=seconds, interrupted=interrupted, variance=variance,
+                  rays=rays, scene=scene.name, integrator=integrator, sampler=sampler, res=size,
+                  max_depth=max_depth, heuristic=heuristic, batch_spp=sizes[0], workers=workers,
+                  precision=precision)

@@ -1,0 +1,590 @@
+"""Scenes as plain arrays, and the pinhole camera (layer 4).
+
+A :class:`Scene` is immutable data: triangles and spheres with one material
+and one emitted radiance per primitive, the area lights that next-event
+estimation samples, an optional environment map and a :class:`Camera`.
+Every call of :func:`load_scene` builds fresh read-only arrays; nothing here is
+a module-level mutable global. The Cornell box's numbers are stored as Python
+tuples (``CORNELL_QUADS`` ...), transcribed from ``shared/scenes/CORNELL.md``,
+so that an installed package needs no data file; a test checks them against
+``cornell.json``.
+
+Scenes
+------
+``cornell``
+    The original Cornell box measured data, exactly per CORNELL.md: 16 quads
+    split into 32 triangles ``(v0, v1, v2)``, ``(v0, v2, v3)``, two-sided
+    Lambertian walls, a one-sided 130 x 105 area light of radiance
+    (17, 12, 4) facing down, no environment, the 35 mm pinhole camera.
+``cornell-spheres``
+    The same room with the two blocks replaced by a mirror sphere and a glass
+    sphere (index 1.5): the lecture's 'Direct + Reflection + Refraction' vs
+    'Global' pair.
+``checkerboard``
+    An emissive checkerboard plane seen in perspective down to the horizon:
+    every pixel is the image-plane integral of a 0/1 pattern over its
+    footprint (no light transport at all), the classic aliasing target of the
+    lecture's sampling slides.
+``furnace``
+    The camera inside a closed Lambertian sphere of albedo ``rho`` that emits
+    ``Le`` everywhere: every pixel converges to ``Le / (1 - rho)``.
+``quad-environment``
+    A Lambertian quad of albedo ``rho`` filling the view, under a constant
+    environment of radiance ``L``: every pixel converges to ``rho * L``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ._validation import as_array, check_positive
+from .bsdf import Glass, Lambertian, Mirror
+from .geometry import normalize
+
+__all__ = [
+    "Camera",
+    "Scene",
+    "SCENES",
+    "load_scene",
+    "cornell_scene",
+    "cornell_spheres_scene",
+    "checkerboard_scene",
+    "furnace_scene",
+    "quad_environment_scene",
+    "CORNELL_QUADS",
+    "CORNELL_ALBEDO",
+    "CORNELL_LIGHT_RADIANCE",
+    "CORNELL_CAMERA",
+]
+
+# --------------------------------------------------------------------------
+# The Cornell box, transcribed from shared/scenes/CORNELL.md (tests compare it
+# with cornell.json). Each quad (v0, v1, v2, v3) is split into the triangles
+# (v0, v1, v2) and (v0, v2, v3); the measured quads are not all planar, so the
+# split is part of the scene.
+CORNELL_QUADS = (
+    ("floor", "white", ((552.8, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 559.2), (549.6, 0.0, 559.2))),
+    ("ceiling", "white", ((556.0, 548.8, 0.0), (556.0, 548.8, 559.2), (0.0, 548.8, 559.2), (0.0, 548.8, 0.0))),
+    ("back_wall", "white", ((549.6, 0.0, 559.2), (0.0, 0.0, 559.2), (0.0, 548.8, 559.2), (556.0, 548.8, 559.2))),
+    ("green_wall", "green", ((0.0, 0.0, 559.2), (0.0, 0.0, 0.0), (0.0, 548.8, 0.0), (0.0, 548.8, 559.2))),
+    ("red_wall", "red", ((552.8, 0.0, 0.0), (549.6, 0.0, 559.2), (556.0, 548.8, 559.2), (556.0, 548.8, 0.0))),
+    ("short_top", "white", ((130.0, 165.0, 65.0), (82.0, 165.0, 225.0), (240.0, 165.0, 272.0), (290.0, 165.0, 114.0))),
+    ("short_side1", "white", ((290.0, 0.0, 114.0), (290.0, 165.0, 114.0), (240.0, 165.0, 272.0), (240.0, 0.0, 272.0))),
+    ("short_side2", "white", ((130.0, 0.0, 65.0), (130.0, 165.0, 65.0), (290.0, 165.0, 114.0), (290.0, 0.0, 114.0))),
+    ("short_side3", "white", ((82.0, 0.0, 225.0), (82.0, 165.0, 225.0), (130.0, 165.0, 65.0), (130.0, 0.0, 65.0))),
+    ("short_side4", "white", ((240.0, 0.0, 272.0), (240.0, 165.0, 272.0), (82.0, 165.0, 225.0), (82.0, 0.0, 225.0))),
+    ("tall_top", "white", ((423.0, 330.0, 247.0), (265.0, 330.0, 296.0), (314.0, 330.0, 456.0), (472.0, 330.0, 406.0))),
+    ("tall_side1", "white", ((423.0, 0.0, 247.0), (423.0, 330.0, 247.0), (472.0, 330.0, 406.0), (472.0, 0.0, 406.0))),
+    ("tall_side2", "white", ((472.0, 0.0, 406.0), (472.0, 330.0, 406.0), (314.0, 330.0, 456.0), (314.0, 0.0, 456.0))),
+    ("tall_side3", "white", ((314.0, 0.0, 456.0), (314.0, 330.0, 456.0), (265.0, 330.0, 296.0), (265.0, 0.0, 296.0))),
+    ("tall_side4", "white", ((265.0, 0.0, 296.0), (265.0, 330.0, 296.0), (423.0, 330.0, 247.0), (423.0, 0.0, 247.0))),
+    ("light", "light", ((343.0, 548.7, 227.0), (343.0, 548.7, 332.0), (213.0, 548.7, 332.0), (213.0, 548.7, 227.0))),
+)
+#: Triangulation of every quad: vertex indices into (v0, v1, v2, v3).
+CORNELL_TRIANGULATION = ((0, 1, 2), (0, 2, 3))
+#: Lambertian albedo per material, linear RGB (BRDF = albedo / pi).
+CORNELL_ALBEDO = (
+    ("white", (0.725, 0.71, 0.68)),
+    ("red", (0.63, 0.065, 0.05)),
+    ("green", (0.14, 0.45, 0.091)),
+    ("light", (0.0, 0.0, 0.0)),
+)
+#: Radiance of the light quad, emitted only to the side of cross(v1-v0, v2-v0) = -y.
+CORNELL_LIGHT_RADIANCE = (17.0, 12.0, 4.0)
+#: Pinhole: position, look-at, up and full field of view in degrees (2 atan(12.5 / 35)).
+CORNELL_CAMERA = ((278.0, 273.0, -800.0), (278.0, 273.0, -799.0), (0.0, 1.0, 0.0),
+                  math.degrees(2.0 * math.atan(12.5 / 35.0)))
+
+
+def _frozen(a, dtype=np.float64) -> np.ndarray:
+    arr = np.array(a, dtype=dtype)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole camera, exactly as ``CORNELL.md`` specifies.
+
+    Parameters
+    ----------
+    position, look_at, up : array_like, shape (3,)
+        Eye point, a point it looks at, and the up hint.
+    fov_deg : float
+        Full horizontal field of view in degrees, in (0, 180).
+
+    Notes
+    -----
+    With ``forward = normalize(look_at - position)``,
+    ``right = normalize(forward x up)`` and ``up' = right x forward`` (for the
+    Cornell camera: forward = +z, up = +y, right = -x: world -x is image
+    right), pixel column ``j``, row ``i`` (row 0 at the top) of a ``W x H``
+    image and a sample offset ``(u, v)`` in [0, 1)^2 give::
+
+        x = (j + u) / W,  y = (i + v) / H,  t = tan(fov / 2)
+        d = normalize(forward + (2x - 1) t right + (1 - 2y) t (H / W) up')
+
+    ``H / W = 1`` for the square images of the specification; for other
+    shapes the field of view is horizontal (``fov_axis: x`` in cornell.json)
+    and pixels stay square.
+    """
+
+    position: np.ndarray
+    look_at: np.ndarray
+    up: np.ndarray
+    fov_deg: float
+
+    def __post_init__(self):
+        pos = _frozen(as_array(self.position, "position", ndim=1, last=3))
+        at = _frozen(as_array(self.look_at, "look_at", ndim=1, last=3))
+        up = _frozen(as_array(self.up, "up", ndim=1, last=3))
+        fov = check_positive(self.fov_deg, "fov_deg")
+        if not fov < 180.0:
+            raise ValueError(f"fov_deg must lie in (0, 180); got {fov}")
+        forward = at - pos
+        if not np.linalg.norm(forward) > 0:
+            raise ValueError("look_at must differ from position")
+        if not np.linalg.norm(np.cross(forward, up)) > 0:
+            raise ValueError("up must not be parallel to the viewing direction")
+        object.__setattr__(self, "position", pos)
+        object.__setattr__(self, "look_at", at)
+        object.__setattr__(self, "up", up)
+        object.__setattr__(self, "fov_deg", fov)
+
+    def basis(self):
+        """Return ``(forward, right, up)``: orthonormal world vectors of the image axes."""
+        forward = normalize(self.look_at - self.position)
+        right = normalize(np.cross(forward, self.up))
+        up = np.cross(right, forward)
+        return forward, right, up
+
+    def ray_directions(self, res, pixel, offsets) -> np.ndarray:
+        """Unit world directions of primary rays, shape ``(n, 3)`` float64.
+
+        Parameters
+        ----------
+        res : tuple of int
+            ``(W, H)``.
+        pixel : array_like of int, shape (n,)
+            Flat pixel index ``i * W + j`` (row ``i`` from the top, column ``j``).
+        offsets : array_like, shape (n, 2)
+            Sample position ``(u, v)`` inside the pixel, in [0, 1]^2.
+        """
+        width, height = res
+        pixel = np.asarray(pixel)
+        offsets = np.asarray(offsets, dtype=np.float64)
+        row, col = np.divmod(pixel, width)
+        t = math.tan(math.radians(self.fov_deg) / 2.0)
+        sx = (2.0 * (col + offsets[:, 0]) / width - 1.0) * t
+        sy = (1.0 - 2.0 * (row + offsets[:, 1]) / height) * t * (height / width)
+        forward, right, up = self.basis()
+        d = forward[None, :] + sx[:, None] * right[None, :] + sy[:, None] * up[None, :]
+        return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """Immutable scene data: primitives, materials, emitters and camera.
+
+    Primitives are numbered triangles first (``0 .. T-1``) then spheres
+    (``T .. T+S-1``); every per-primitive table is indexed by that number.
+
+    Attributes
+    ----------
+    name : str
+    triangles : ndarray, shape (T, 3, 3)
+        Triangle vertices; the geometric normal is ``cross(v1 - v0, v2 - v0)``.
+    sphere_centers : ndarray, shape (S, 3)
+    sphere_radii : ndarray, shape (S,)
+    prim_material : ndarray of int, shape (T + S,)
+        Index into ``materials``.
+    prim_emission : ndarray, shape (T + S, 3)
+        Emitted radiance (linear RGB, >= 0).
+    prim_two_sided_emission : ndarray of bool, shape (T + S,)
+        False: a triangle emits only to the side of its geometric normal, a
+        sphere only outwards.
+    prim_light : ndarray of int, shape (T + S,)
+        Index of the area light a primitive belongs to, -1 if none. Emission
+        of primitives without a light is found only by BSDF sampling
+        (its MIS weight is 1).
+    prim_group : ndarray of int, shape (T + S,)
+        Triangles of group g > 0 are culled by the group's bounding box in
+        :mod:`mcvar.tracer`; group 0 is always tested.
+    materials : tuple
+        :mod:`mcvar.bsdf` objects (``Lambertian``, ``Mirror``, ``Glass``).
+    material_names : tuple of str
+    light_origin, light_edge1, light_edge2 : ndarray, shape (L, 3)
+        Parallelogram area lights ``origin + a edge1 + b edge2``,
+        ``(a, b)`` in [0, 1]^2, emitting ``light_radiance`` only to the side of
+        ``cross(edge1, edge2)``.
+    light_radiance : ndarray, shape (L, 3)
+    environment : mcvar.envmap.EnvironmentMap or None
+        Radiance arriving from infinitely far away (rays that miss everything).
+    camera : Camera
+    checker_period : float or None
+        If set, the emission of every triangle is multiplied by the checker
+        pattern ``(floor(x / p) + floor(z / p)) mod 2`` of the hit point.
+    ray_epsilon : float
+        Offset along the normal of secondary ray origins (scene units).
+    """
+
+    name: str
+    triangles: np.ndarray
+    sphere_centers: np.ndarray
+    sphere_radii: np.ndarray
+    prim_material: np.ndarray
+    prim_emission: np.ndarray
+    prim_two_sided_emission: np.ndarray
+    prim_light: np.ndarray
+    prim_group: np.ndarray
+    materials: tuple
+    material_names: tuple
+    light_origin: np.ndarray
+    light_edge1: np.ndarray
+    light_edge2: np.ndarray
+    light_radiance: np.ndarray
+    camera: Camera
+    environment: object | None = None
+    checker_period: float | None = None
+    ray_epsilon: float = 1e-3
+    description: str = field(default="")
+
+    def __post_init__(self):
+        tri = _frozen(self.triangles).reshape(-1, 3, 3)
+        sc = _frozen(self.sphere_centers).reshape(-1, 3)
+        sr = _frozen(self.sphere_radii).reshape(-1)
+        n_prim = tri.shape[0] + sc.shape[0]
+        if sr.shape[0] != sc.shape[0] or not np.all(sr > 0):
+            raise ValueError("sphere_radii must be > 0, one per sphere center")
+        tables = {
+            "prim_material": _frozen(self.prim_material, np.int64).reshape(-1),
+            "prim_emission": _frozen(self.prim_emission).reshape(-1, 3),
+            "prim_two_sided_emission": _frozen(self.prim_two_sided_emission, bool).reshape(-1),
+            "prim_light": _frozen(self.prim_light, np.int64).reshape(-1),
+            "prim_group": _frozen(self.prim_group, np.int64).reshape(-1),
+        }
+        for key, arr in tables.items():
+            if arr.shape[0] != n_prim:
+                raise ValueError(f"{key} must have one row per primitive ({n_prim}); got {arr.shape[0]}")
+        if not np.all(tables["prim_emission"] >= 0):
+            raise ValueError("prim_emission must be non-negative")
+        mat = tables["prim_material"]
+        if n_prim and not (mat.min() >= 0 and mat.max() < len(self.materials)):
+            raise ValueError("prim_material must index into materials")
+        lights = {k: _frozen(getattr(self, k)).reshape(-1, 3)
+                  for k in ("light_origin", "light_edge1", "light_edge2", "light_radiance")}
+        n_light = lights["light_origin"].shape[0]
+        if any(v.shape[0] != n_light for v in lights.values()):
+            raise ValueError("light_origin, light_edge1, light_edge2, light_radiance must have one row per light")
+        if not np.all(lights["light_radiance"] >= 0):
+            raise ValueError("light_radiance must be non-negative")
+        if not np.all(np.linalg.norm(np.cross(lights["light_edge1"], lights["light_edge2"]), axis=1) > 0):
+            raise ValueError("light edges must span a parallelogram of positive area")
+        pl = tables["prim_light"]
+        if n_prim and not (pl.min() >= -1 and pl.max() < n_light):
+            raise ValueError("prim_light must be -1 or index a light")
+        object.__setattr__(self, "triangles", tri)
+        object.__setattr__(self, "sphere_centers", sc)
+        object.__setattr__(self, "sphere_radii", sr)
+        for key, arr in {**tables, **lights}.items():
+            object.__setattr__(self, key, arr)
+        object.__setattr__(self, "materials", tuple(self.materials))
+        object.__setattr__(self, "material_names", tuple(self.material_names))
+        check_positive(self.ray_epsilon, "ray_epsilon")
+        if self.checker_period is not None:
+            check_positive(self.checker_period, "checker_period")
+
+    @property
+    def n_triangles(self) -> int:
+        return self.triangles.shape[0]
+
+    @property
+    def n_spheres(self) -> int:
+        return self.sphere_centers.shape[0]
+
+    @property
+    def n_lights(self) -> int:
+        return self.light_origin.shape[0]
+
+    @property
+    def light_area(self) -> np.ndarray:
+        """Area of each parallelogram light, shape (L,)."""
+        return np.linalg.norm(np.cross(self.light_edge1, self.light_edge2), axis=1)
+
+    @property
+    def light_normal(self) -> np.ndarray:
+        """Unit emitting-side normal of each light, shape (L, 3)."""
+        n = np.cross(self.light_edge1, self.light_edge2)
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+# --------------------------------------------------------------------------
+# Builders
+
+def _quad_triangles(quad):
+    v = np.asarray(quad, dtype=np.float64)
+    return [v[list(t)] for t in CORNELL_TRIANGULATION]
+
+
+def _room(blocks: bool):
+    """Triangles, per-triangle material names and groups of the Cornell box."""
+    tris, mats, groups, emit = [], [], [], []
+    for name, material, quad in CORNELL_QUADS:
+        if not blocks and name.startswith(("short", "tall")):
+            continue
+        group = 1 if name.startswith("short") else 2 if name.startswith("tall") else 0
+        for tri in _quad_triangles(quad):
+            tris.append(tri)
+            mats.append(material)
+            groups.append(group)
+            emit.append(name == "light")
+    return np.array(tris), mats, groups, np.array(emit)
+
+
+def _cornell_light():
+    quad = np.array(dict((n, q) for n, _, q in CORNELL_QUADS)["light"])
+    origin, e1, e2 = quad[0], quad[1] - quad[0], quad[3] - quad[0]
+    # The light quad is an exact parallelogram: v0 + e1 + e2 == v2.
+    if not np.allclose(origin + e1 + e2, quad[2], rtol=0, atol=1e-9):
+        raise AssertionError("the Cornell light quad is not a parallelogram")
+    return origin, e1, e2
+
+
+def _cornell_common(blocks: bool, extra_spheres=()):
+    tris, tri_mats, groups, is_light = _room(blocks)
+    albedo = dict(CORNELL_ALBEDO)
+    names = [name for name, _ in CORNELL_ALBEDO]
+    materials = [Lambertian(albedo[n]) for n in names]
+    sphere_c, sphere_r, sphere_m = [], [], []
+    for center, radius, mat_name, bsdf in extra_spheres:
+        names.append(mat_name)
+        materials.append(bsdf)
+        sphere_c.append(center)
+        sphere_r.append(radius)
+        sphere_m.append(len(names) - 1)
+    n_tri, n_sph = len(tris), len(sphere_c)
+    prim_material = [names.index(m) for m in tri_mats] + sphere_m
+    emission = np.zeros((n_tri + n_sph, 3))
+    emission[:n_tri][is_light] = CORNELL_LIGHT_RADIANCE
+    prim_light = np.full(n_tri + n_sph, -1)
+    prim_light[:n_tri][is_light] = 0
+    origin, e1, e2 = _cornell_light()
+    position, look_at, up, fov = CORNELL_CAMERA
+    return dict(
+        triangles=tris,
+        sphere_centers=np.array(sphere_c, dtype=np.float64).reshape(-1, 3),
+        sphere_radii=np.array(sphere_r, dtype=np.float64),
+        prim_material=prim_material,
+        prim_emission=emission,
+        prim_two_sided_emission=np.zeros(n_tri + n_sph, dtype=bool),
+        prim_light=prim_light,
+        prim_group=groups + [0] * n_sph,
+        materials=tuple(materials),
+        material_names=tuple(names),
+        light_origin=origin[None],
+        light_edge1=e1[None],
+        light_edge2=e2[None],
+        light_radiance=np.array([CORNELL_LIGHT_RADIANCE]),
+        camera=Camera(position, look_at, up, fov),
+        ray_epsilon=0.01,
+    )
+
+
+def cornell_scene() -> Scene:
+    """The Cornell box exactly as ``shared/scenes/CORNELL.md`` specifies.
+
+    Returns
+    -------
+    Scene
+        32 triangles (16 quads), 4 Lambertian materials, one parallelogram
+        light of radiance (17, 12, 4) facing -y, no environment.
+
+    Notes
+    -----
+    The converged 64 x 64 image has mean about (0.196, 0.127, 0.036)
+    (CORNELL.md's sanity check). Secondary rays start ``ray_epsilon = 0.01``
+    units off the surface, far below the 0.1 gap between light and ceiling.
+    """
+    return Scene(name="cornell", description="Cornell box (original measured data)",
+                 **_cornell_common(blocks=True))
+
+
+def cornell_spheres_scene(eta: float = 1.5) -> Scene:
+    """The Cornell room with a mirror sphere and a glass sphere instead of the blocks.
+
+    Parameters
+    ----------
+    eta : float
+        Relative index of refraction of the glass sphere (default 1.5).
+
+    Notes
+    -----
+    The mirror sphere (radius 100) stands at the back left of the image
+    (x = 370, z = 370), the glass sphere (radius 100) at the front right
+    (x = 180, z = 170); both rest on the floor. The light, walls and camera are
+    those of :func:`cornell_scene`.
+    """
+    eta = check_positive(eta, "eta")
+    spheres = (((370.0, 100.0, 370.0), 100.0, "mirror", Mirror()),
+               ((180.0, 100.0, 170.0), 100.0, "glass", Glass(eta)))
+    return Scene(name="cornell-spheres", description="Cornell room, mirror and glass spheres",
+                 **_cornell_common(blocks=False, extra_spheres=spheres))
+
+
+def checkerboard_scene(period: float = 1.0) -> Scene:
+    """An emissive checkerboard plane in perspective: an image-plane integral.
+
+    Parameters
+    ----------
+    period : float
+        Side of one checker square (world units, default 1).
+
+    Notes
+    -----
+    The plane y = 0, 2000 x 2000 units, emits radiance 1 on the squares where
+    ``(floor(x / p) + floor(z / p))`` is odd and 0 elsewhere, and reflects
+    nothing (albedo 0); the sky is black. A camera 2 units above it looks at
+    a point 10 units ahead on the ground, so squares shrink towards the
+    horizon across the image. Every integrator then returns the same pixel
+    value: the fraction of the pixel's footprint covered by lit squares, an
+    integral of a discontinuous function over the pixel square, the lecture's
+    aliasing (moire) example for uniform, random and jittered samples.
+    """
+    period = check_positive(period, "period")
+    s = 1000.0
+    quad = np.array([(-s, 0.0, -s), (-s, 0.0, s), (s, 0.0, s), (s, 0.0, -s)])
+    tris = np.array(_quad_triangles(quad))
+    return Scene(
+        name="checkerboard", description="perspective checkerboard (image-plane integral)",
+        triangles=tris, sphere_centers=np.zeros((0, 3)), sphere_radii=np.zeros(0),
+        prim_material=[0, 0], prim_emission=np.ones((2, 3)),
+        prim_two_sided_emission=[True, True], prim_light=[-1, -1], prim_group=[0, 0],
+        materials=(Lambertian((0.0, 0.0, 0.0)),), material_names=("black",),
+        light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)),
+        light_edge2=np.zeros((0, 3)), light_radiance=np.zeros((0, 3)),
+        camera=Camera((0.0, 2.0, 0.0), (0.0, 0.0, 10.0), (0.0, 1.0, 0.0), 60.0),
+        checker_period=period, ray_epsilon=1e-3)
+
+
+def _rgb(value, name):
+    arr = as_array(value, name, nonnegative=True)
+    arr = np.broadcast_to(arr, (3,)) if arr.ndim == 0 else arr
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must be a scalar or an RGB triple; got shape {arr.shape}")
+    return np.array(arr, dtype=np.float64)
+
+
+def furnace_scene(albedo=0.5, emission=1.0) -> Scene:
+    """The camera inside a closed Lambertian sphere that emits everywhere.
+
+    Parameters
+    ----------
+    albedo : float or (3,) array_like
+        Lambertian albedo ``rho`` of the sphere's inside, each in [0, 1).
+    emission : float or (3,) array_like
+        Radiance ``Le`` emitted by every point, in every direction.
+
+    Notes
+    -----
+    Radiance is the same everywhere, so the rendering equation
+    ``L = Le + rho L`` gives ``L = Le / (1 - rho)`` for every pixel; a path of
+    at most ``d`` segments (``max_depth = d``) gathers the truncated sum
+    ``Le (1 - rho^d) / (1 - rho)``. The emission is not an area light (next
+    event estimation has nothing to sample), so it is found by BSDF sampling
+    alone, with MIS weight 1.
+    """
+    rho = _rgb(albedo, "albedo")
+    if not np.all(rho < 1.0):
+        raise ValueError(f"albedo must be < 1 for a finite furnace; got {rho}")
+    le = _rgb(emission, "emission")
+    return Scene(
+        name="furnace", description="closed emitting Lambertian sphere",
+        triangles=np.zeros((0, 3, 3)), sphere_centers=[(0.0, 0.0, 0.0)], sphere_radii=[1.0],
+        prim_material=[0], prim_emission=le[None], prim_two_sided_emission=[True],
+        prim_light=[-1], prim_group=[0], materials=(Lambertian(rho),), material_names=("inside",),
+        light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)),
+        light_edge2=np.zeros((0, 3)), light_radiance=np.zeros((0, 3)),
+        camera=Camera((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0), 60.0),
+        ray_epsilon=1e-5)
+
+
+def quad_environment_scene(albedo=0.5, radiance=1.0, resolution=(8, 16)) -> Scene:
+    """A Lambertian quad under a constant environment, filling the view.
+
+    Parameters
+    ----------
+    albedo : float or (3,) array_like
+        Lambertian albedo ``rho`` in [0, 1].
+    radiance : float or (3,) array_like
+        Constant environment radiance ``L``.
+    resolution : tuple of int
+        ``(height, width)`` of the constant lat-long environment image.
+
+    Notes
+    -----
+    The quad [-1, 1]^2 in the plane y = 0 is seen from (0, 1, 0) looking
+    straight down with a 60 degree field of view, so every primary ray hits
+    it (tan 30 deg < 1). A point of the quad sees the whole upper hemisphere of
+    constant radiance and nothing else, so its reflected radiance is
+    ``rho / pi * L * integral(cos) = rho L`` (the lecture's 'Diffuse Exitant
+    Radiance'); there are no interreflections.
+    """
+    from .envmap import EnvironmentMap
+
+    rho = _rgb(albedo, "albedo")
+    le = _rgb(radiance, "radiance")
+    h, w = resolution
+    env = EnvironmentMap(np.broadcast_to(le, (h, w, 3)).copy())
+    quad = np.array([(-1.0, 0.0, -1.0), (-1.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 0.0, -1.0)])
+    return Scene(
+        name="quad-environment", description="Lambertian quad under a constant environment",
+        triangles=np.array(_quad_triangles(quad)), sphere_centers=np.zeros((0, 3)),
+        sphere_radii=np.zeros(0), prim_material=[0, 0], prim_emission=np.zeros((2, 3)),
+        prim_two_sided_emission=[False, False], prim_light=[-1, -1], prim_group=[0, 0],
+        materials=(Lambertian(rho),), material_names=("diffuse",),
+        light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)),
+        light_edge2=np.zeros((0, 3)), light_radiance=np.zeros((0, 3)),
+        camera=Camera((0.0, 1.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 60.0),
+        environment=env, ray_epsilon=1e-5)
+
+
+#: Scene builders by name; :func:`load_scene` passes keyword options through.
+SCENES: dict[str, Callable[..., Scene]] = {
+    "cornell": cornell_scene,
+    "cornell-spheres": cornell_spheres_scene,
+    "checkerboard": checkerboard_scene,
+    "furnace": furnace_scene,
+    "quad-environment": quad_environment_scene,
+}
+
+
+def load_scene(name: str, **options) -> Scene:
+    """Build the scene called ``name``.
+
+    Parameters
+    ----------
+    name : str
+        One of ``'cornell'``, ``'cornell-spheres'``, ``'checkerboard'``,
+        ``'furnace'``, ``'quad-environment'``.
+    **options
+        Passed to the builder (e.g. ``albedo=0.8`` for ``'furnace'``).
+
+    Returns
+    -------
+    Scene
+        Fresh read-only arrays on every call.
+
+    Examples
+    --------
+    >>> scene = load_scene("cornell")
+    >>> scene.n_triangles, scene.n_lights
+    (32, 1)
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"name must be a string, one of {tuple(SCENES)}; got {type(name).__name__}")
+    if name not in SCENES:
+        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")
+    return SCENES[name](**options)
