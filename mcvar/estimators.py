@@ -38,11 +38,15 @@ from scipy import stats
 from ._validation import as_array, as_rng, check_choice, check_count, check_positive, check_probability
 from .metrics import LogLogFit, loglog_fit
 from .samplers import digital_shift, get_sampler
+from . import warps
 
 __all__ = [
     "Estimate",
     "estimate",
     "estimate_mean",
+    "contribution",
+    "one_sample_mis_contribution",
+    "hemisphere_estimate",
     "mis_estimate",
     "one_sample_mis",
     "balance_heuristic",
@@ -307,8 +311,22 @@ def _eval_f(f, x, n: int, name: str = "f") -> np.ndarray:
     return fx
 
 
-def _contribution(f, sample, pdf, zero_pdf: str):
-    """``g(u) = f(x) / p(x)`` with ``x = sample(u)``; identity warp and p = 1 by default."""
+def contribution(f, *, sample=None, pdf=None, zero_pdf: Literal["raise", "drop"] = "raise"):
+    """The per-sample contribution ``g(u) = f(x) / p(x)``, ``x = sample(u)``.
+
+    What :func:`estimate` averages, as a function of unit-square points
+    ``(n, 2) -> (n,)`` (or ``(n, ...)``), to pass to :func:`estimate_mean`
+    or to evaluate on points of one's own (``mcvar.examples.PROBLEMS``
+    methods are built with it). ``sample=None`` is the identity warp and
+    ``pdf=None`` the density 1; ``zero_pdf`` as in :func:`estimate`.
+    """
+    if not callable(f):
+        raise TypeError(f"f must be callable; got {type(f).__name__}")
+    for name, fn in (("sample", sample), ("pdf", pdf)):
+        if fn is not None and not callable(fn):
+            raise TypeError(f"{name} must be callable or None; got {type(fn).__name__}")
+    check_choice(zero_pdf, "zero_pdf", ("raise", "drop"))
+
     def g(u):
         n = u.shape[0]
         x = u if sample is None else sample(u)
@@ -643,13 +661,7 @@ def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=No
     >>> abs(e.mean - 2) < 5 * e.stderr, round(e.variance, 1)
     (True, 4.0)
     """
-    if not callable(f):
-        raise TypeError(f"f must be callable; got {type(f).__name__}")
-    for name, fn in (("sample", sample), ("pdf", pdf)):
-        if fn is not None and not callable(fn):
-            raise TypeError(f"{name} must be callable or None; got {type(fn).__name__}")
-    check_choice(zero_pdf, "zero_pdf", ("raise", "drop"))
-    return estimate_mean(_contribution(f, sample, pdf, zero_pdf), n=n, sampler=sampler, rng=rng,
+    return estimate_mean(contribution(f, sample=sample, pdf=pdf, zero_pdf=zero_pdf), n=n, sampler=sampler, rng=rng,
                          replicates=replicates, atol=atol, rtol=rtol, level=level, max_n=max_n,
                          batch=batch)
 
@@ -942,6 +954,55 @@ def mis_estimate(f, strategies, *, n, heuristic: Literal["balance", "power"] = "
     return Estimate.from_replicates(np.stack(means), sum(per))
 
 
+def one_sample_mis_contribution(f, strategies, *, probabilities=None,
+                                heuristic: Literal["balance", "power"] = "balance", beta: float = 2.0,
+                                zero_pdf: Literal["raise", "drop"] = "raise"):
+    """The per-sample contribution of :func:`one_sample_mis`, ``u (n, 2) -> (n, ...)``.
+
+    Strategy ``k`` is chosen with probability ``c_k`` from ``u[:, 0]``, which
+    is then rescaled to [0, 1) and reused by the strategy's warp; the
+    contribution is ``w_k(X) f(X) / (c_k p_k(X))``. Arguments as in
+    :func:`one_sample_mis`.
+    """
+    if not callable(f):
+        raise TypeError(f"f must be callable; got {type(f).__name__}")
+    pairs = _strategies(strategies)
+    k = len(pairs)
+    check_choice(zero_pdf, "zero_pdf", ("raise", "drop"))
+    check_choice(heuristic, "heuristic", ("balance", "power"))
+    if heuristic == "power":
+        check_positive(beta, "beta", allow_inf=True)
+    if probabilities is None:
+        c = np.full(k, 1.0 / k)
+    else:
+        c = as_array(probabilities, "probabilities", ndim=1)
+        if c.shape != (k,) or not np.all(c > 0) or abs(c.sum() - 1.0) > 1e-12:
+            raise ValueError(f"probabilities must be {k} positive numbers summing to 1; got {c.tolist()}")
+    edges = np.concatenate([[0.0], np.cumsum(c)[:-1]])
+
+    def g(u):
+        m = u.shape[0]
+        pick = np.clip(np.searchsorted(edges, u[:, 0], side="right") - 1, 0, k - 1)
+        v = np.array(u, dtype=np.float64)
+        v[:, 0] = np.clip((u[:, 0] - edges[pick]) / c[pick], 0.0, np.nextafter(1.0, 0.0))
+        x = None
+        for i in range(k):
+            sel = pick == i
+            if sel.any():
+                xi = np.asarray(pairs[i][0](v[sel]), dtype=np.float64)
+                if x is None:
+                    x = np.empty((m,) + xi.shape[1:])
+                x[sel] = xi
+        if x is None:                       # m == 0
+            x = np.asarray(pairs[0][0](v), dtype=np.float64)
+        fx = _eval_f(f, x, m)
+        p = _pdf_matrix(pairs, x, m)
+        rows = np.arange(m)
+        w = mis_weights(p, c, heuristic=heuristic, beta=beta)[pick, rows]
+        return _divide(fx * w.reshape((m,) + (1,) * (fx.ndim - 1)), c[pick] * p[pick, rows], zero_pdf)
+    return g
+
+
 def one_sample_mis(f, strategies, *, n, probabilities=None,
                    heuristic: Literal["balance", "power"] = "balance", beta: float = 2.0,
                    sampler="random", rng=None, replicates=None,
@@ -980,43 +1041,66 @@ def one_sample_mis(f, strategies, *, n, probabilities=None,
     .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
        Simulation", PhD thesis, Stanford University, 1997, ch. 9.
     """
-    if not callable(f):
-        raise TypeError(f"f must be callable; got {type(f).__name__}")
-    pairs = _strategies(strategies)
-    k = len(pairs)
-    check_choice(zero_pdf, "zero_pdf", ("raise", "drop"))
-    check_choice(heuristic, "heuristic", ("balance", "power"))
-    if probabilities is None:
-        c = np.full(k, 1.0 / k)
-    else:
-        c = as_array(probabilities, "probabilities", ndim=1)
-        if c.shape != (k,) or not np.all(c > 0) or abs(c.sum() - 1.0) > 1e-12:
-            raise ValueError(f"probabilities must be {k} positive numbers summing to 1; got {c.tolist()}")
-    edges = np.concatenate([[0.0], np.cumsum(c)[:-1]])
-
-    def g(u):
-        m = u.shape[0]
-        pick = np.clip(np.searchsorted(edges, u[:, 0], side="right") - 1, 0, k - 1)
-        v = u.copy()
-        v[:, 0] = np.clip((u[:, 0] - edges[pick]) / c[pick], 0.0, np.nextafter(1.0, 0.0))
-        xs = [None] * k
-        for i in range(k):
-            sel = pick == i
-            if sel.any():
-                xs[i] = np.asarray(pairs[i][0](v[sel]), dtype=np.float64)
-        shape = next(x.shape[1:] for x in xs if x is not None)
-        x = np.empty((m,) + shape)
-        for i in range(k):
-            if xs[i] is not None:
-                x[pick == i] = xs[i]
-        fx = _eval_f(f, x, m)
-        p = _pdf_matrix(pairs, x, m)
-        w = mis_weights(p, c, heuristic=heuristic, beta=beta)[pick, np.arange(m)]
-        return _divide(fx * w.reshape((m,) + (1,) * (fx.ndim - 1)), c[pick] * p[pick, np.arange(m)],
-                       zero_pdf)
-
+    g = one_sample_mis_contribution(f, strategies, probabilities=probabilities, heuristic=heuristic,
+                                    beta=beta, zero_pdf=zero_pdf)
     return estimate_mean(g, n=n, sampler=sampler, rng=rng, replicates=replicates, atol=atol,
                          rtol=rtol, level=level, max_n=max_n, batch=batch)
+
+
+_HEMISPHERE = {
+    "uniform": (warps.square_to_uniform_hemisphere, warps.square_to_uniform_hemisphere_pdf),
+    "cosine": (warps.square_to_cosine_hemisphere, warps.square_to_cosine_hemisphere_pdf),
+}
+
+
+def hemisphere_estimate(radiance, *, n, method: Literal["uniform", "cosine", "mis"] = "cosine",
+                        sampler="random", rng=None, replicates=None, atol=None, rtol=None,
+                        level: float = 0.99, max_n: int = 1 << 28) -> Estimate:
+    """Estimate ``int_H L_i(w) cos(theta) dw`` over the hemisphere about +y.
+
+    Parameters
+    ----------
+    radiance : callable
+        ``L_i(w) -> (n,)`` or ``(n, 3)`` for local directions ``w`` (normal
+        +y), finite and >= 0.
+    n : int
+        Samples.
+    method : {'uniform', 'cosine', 'mis'}
+        ``'uniform'``: ``p = 1 / (2 pi)``, contribution ``2 pi L_i cos``;
+        ``'cosine'``: ``p = cos / pi``, contribution ``pi L_i`` ('more
+        radiance per sample'); ``'mis'``: one-sample MIS of the two with the
+        balance heuristic (each picked with probability 1/2).
+    sampler, rng, replicates, atol, rtol, level, max_n
+        As in :func:`estimate`.
+
+    Returns
+    -------
+    Estimate
+
+    Notes
+    -----
+    The lecture's slides 'Monte Carlo Uniform Sampling' and 'Monte Carlo
+    Cosine Sampling'. Cosine sampling reaches the horizon (``p = 0``) only on
+    the edge of the unit square; there ``L_i cos = 0`` so nothing is lost.
+    """
+    check_choice(method, "method", ("uniform", "cosine", "mis"))
+    if not callable(radiance):
+        raise TypeError(f"radiance must be callable; got {type(radiance).__name__}")
+
+    def f(w):
+        li = _eval_f(radiance, w, w.shape[0], "radiance")
+        if not np.all(li >= 0):
+            raise ValueError("radiance must be >= 0")
+        cos = w[:, 1]
+        return li * np.maximum(cos, 0.0).reshape((-1,) + (1,) * (li.ndim - 1))
+
+    if method == "mis":
+        g = one_sample_mis_contribution(f, [_HEMISPHERE["uniform"], _HEMISPHERE["cosine"]])
+    else:
+        sample, pdf = _HEMISPHERE[method]
+        g = contribution(f, sample=sample, pdf=pdf)
+    return estimate_mean(g, n=n, sampler=sampler, rng=rng, replicates=replicates, atol=atol,
+                         rtol=rtol, level=level, max_n=max_n)
 
 
 # --------------------------------------------------------------------------
