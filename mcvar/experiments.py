@@ -569,13 +569,14 @@ def _fit(x, y):
     return loglog_fit(x[keep], y[keep])
 
 
-def _falls(fit: LogLogFit | None, alpha: float) -> bool:
-    """One-sided t test: slope < 0 at level alpha (residual-based stderr)."""
-    if fit is None:
-        return False
-    if fit.slope_stderr == 0:
-        return fit.slope < 0
-    return fit.slope + stats.t.ppf(1 - alpha, max(fit.n - 2, 1)) * fit.slope_stderr < 0
+def _decreases(first: ConfigMetrics, last: ConfigMetrics, name: str, alpha: float) -> bool:
+    """One-sided z test that ``name`` (mse or bias2) is lower at ``last`` than at
+    ``first``, with their jackknife standard errors (independent replicates)."""
+    a, b = getattr(first, name), getattr(last, name)
+    s = float(np.hypot(getattr(first, f"{name}_stderr"), getattr(last, f"{name}_stderr")))
+    if s == 0:
+        return bool(a > b)
+    return bool(a - b > stats.norm.ppf(1 - alpha) * s)
 
 
 def _fits(method, sampler, rows: Sequence[ConfigMetrics], alpha: float) -> MethodFits:
@@ -585,17 +586,23 @@ def _fits(method, sampler, rows: Sequence[ConfigMetrics], alpha: float) -> Metho
     f_mse = _fit(spp, mse)
     f_time = _fit([m.seconds for m in rows], mse)
     f_b2 = _fit(spp, [m.bias2 for m in rows])
-    last = rows[-1]
+    first, last = rows[0], rows[-1]
     if max(abs(v) for v in mse) == 0:
         return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, True, "exact at every level")
-    mse_falls = _falls(f_mse, alpha)
-    bias_gone = (not last.bias_detected) or _falls(f_b2, alpha)
-    words = []
-    words.append(f"MSE slope {f_mse.slope:.2f} ± {f_mse.slope_stderr:.2f}" if f_mse else "MSE not fitted")
-    words.append(f"bias at {last.spp} spp {'detected' if last.bias_detected else 'not detected'} "
-                 f"(t = {last.bias_z:.1f})")
+    if len(rows) < 2:
+        return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, False,
+                          "one spp level: consistency cannot be measured")
+    mse_falls = _decreases(first, last, "mse", alpha)
+    bias_falls = _decreases(first, last, "bias2", alpha)
+    bias_gone = (not last.bias_detected) or bias_falls
+    words = [f"MSE {first.mse:.3g} at {first.spp} -> {last.mse:.3g} at {last.spp} spp "
+             f"({'falls' if mse_falls else 'does not fall'} significantly"
+             + (f"; slope {f_mse.slope:.2f} ± {f_mse.slope_stderr:.2f})" if f_mse else ")"),
+             f"bias at {last.spp} spp {'detected' if last.bias_detected else 'not detected'} "
+             f"(t = {last.bias_z:.1f})"]
     if last.bias_detected:
-        words.append(f"bias² slope {f_b2.slope:.2f} ± {f_b2.slope_stderr:.2f}" if f_b2 else "bias² not fitted")
+        words.append(f"bias² {first.bias2:.3g} -> {last.bias2:.3g} "
+                     f"({'falls' if bias_falls else 'does not fall'} significantly)")
     return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, bool(mse_falls and bias_gone),
                       "; ".join(words))
 
@@ -762,10 +769,12 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
     cancels over the image escapes this test (the per-pixel squared bias is
     reported beside it).
 
-    *Consistency.* Per sampler: the MSE falls (log-log slope of MSE vs spp
-    < 0, one-sided t test at ``alpha``) and the bias vanishes (not detected at
-    the largest spp, or its square falls significantly). A fixed-depth path
-    tracer's MSE levels off at its squared bias: not consistent.
+    *Consistency.* Per sampler: the MSE falls (MSE at the largest spp below
+    the MSE at the smallest, one-sided z test with their jackknife errors at
+    level ``alpha``) and the bias vanishes (not detected at the largest spp,
+    or its square falls significantly by the same test). A fixed-depth path
+    tracer's MSE levels off at its squared bias: not consistent. 'Not
+    consistent' means consistency was not shown by these measurements.
 
     References
     ----------

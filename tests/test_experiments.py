@@ -239,3 +239,21 @@ def test_non_finite_estimates_are_an_error():
     with pytest.raises(ValueError, match="non-finite"):
         ex.sweep(fake_target(evaluate=_nan_evaluate, exact=np.zeros(3)), spp=(1, 2, 4), replicates=3,
                  workers=1, progress=False)
+
+
+# ---------------------------------------------------------------- the Cornell box
+
+def test_fixed_depth_path_tracing_is_biased_and_russian_roulette_is_not():
+    """The lecture's 'Number of ray bounces' and the chart's 'path tracing':
+    stopping paths at depth 2 loses the indirect light (a bias detected at more
+    than 5 standard errors); Russian roulette's bias is not detected."""
+    pytest.importorskip("mcvar.integrators")
+    target = ex.scene_target("cornell", res=16, reference_spp=256, reference_chunks=8)
+    result = ex.sweep(target, methods=("path", "path:2"), samplers=("random",), spp=(4, 32, 256),
+                      replicates=8, seed=271828, workers=1, progress=False)
+    fixed = [m for m in result.metrics if m.method == "path:2"]
+    rr = [m for m in result.metrics if m.method == "path"]
+    assert fixed[-1].bias_z < -Z  # light is missing: the bias is negative
+    assert all(m.bias_pvalue > result.alpha_family for m in rr)
+    assert result.verdicts["path"].label == "both"
+    assert result.verdicts["path:2"].label == "neither"  # its MSE levels off at the squared bias
