@@ -635,16 +635,22 @@ def get_sampler(name: str):
 # Per-pixel sample sets for the tracer
 # --------------------------------------------------------------------------
 
+def _shuffle(sets: np.ndarray, rng) -> np.ndarray:
+    """Permute the points of each set (axis 1) independently."""
+    order = rng.permuted(np.broadcast_to(np.arange(sets.shape[1]), sets.shape[:2]), axis=-1)
+    return np.take_along_axis(sets, order[..., None], axis=1)
+
+
 def _pixel_pairs(name: str, n_pixels: int, spp: int, rng) -> np.ndarray:
     """One independently randomized 2D pattern per pixel: (n_pixels, spp, 2)."""
     if name == "random":
         return _random_sets(n_pixels, spp, 2, rng)
-    if name == "jittered":
-        return _jittered_sets(n_pixels, spp, 2, rng)
     if name == "n_rooks":
         return _latin_sets(n_pixels, spp, 2, rng)
-    if name == "multi_jittered":
-        return _multi_jittered_sets(n_pixels, spp, rng, True)
+    if name in ("jittered", "multi_jittered"):  # stratum order -> random order per pixel
+        sets = (_jittered_sets(n_pixels, spp, 2, rng) if name == "jittered"
+                else _multi_jittered_sets(n_pixels, spp, rng, True))
+        return _shuffle(sets, rng)
     if name in ("sobol", "hammersley"):
         base = _sobol_points(spp, 2, False, None) if name == "sobol" else hammersley(spp)
         shifts = rng.integers(0, 2 ** _FRACTION_BITS, size=(n_pixels, 1, 2), dtype=np.uint64)
@@ -686,7 +692,10 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     randomized pattern per pixel, and pairs after the first are shuffled over
     the spp index independently per pixel ("padded" 2D samples, pbrt-v4's
     ``PaddedSobolSampler``): every pair is stratified, pairs are decorrelated.
-    The first pair keeps the sampler's order.
+    The first pair keeps the sampler's order (so the first 2^k Sobol points
+    of a pixel are a net), except that jittered and multi-jittered sets are
+    put in random order: then every sample index, not only the whole set, is
+    uniform over the pixel, and any prefix of the spp samples is unbiased.
 
     Randomization per pixel, vectorised (no loop over pixels):
 
@@ -728,7 +737,6 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     for k, gen in enumerate(streams):
         block = _pixel_pairs(name, n_pixels, spp, gen)
         if k:
-            order = gen.permuted(np.broadcast_to(np.arange(spp), (n_pixels, spp)), axis=-1)
-            block = np.take_along_axis(block, order[..., None], axis=1)
+            block = _shuffle(block, gen)
         out[:, :, 2 * k:2 * k + 2] = block
     return out[:, :, :d]
