@@ -1145,17 +1145,16 @@ def directional_albedo(bsdf: BSDF, wo, *, n: int = 4096, rng=None) -> AlbedoEsti
     n = check_count(n, "n")
     rng = as_rng(rng)
     m = len(wo)
-    total = np.zeros((m, 3))
-    total2 = np.zeros((m, 3))
+    mean = np.zeros((m, 3))
+    var = np.zeros((m, 3))
     rows = max(1, _CHUNK // n)
-    for start in range(0, m, rows):
+    for start in range(0, m, rows):          # every row's n samples lie in one block
         block = wo[start:start + rows]
         k = len(block)
         w = bsdf.sample(np.repeat(block, n, axis=0), rng.random((k * n, 2))).weight.reshape(k, n, 3)
-        total[start:start + k] = w.sum(axis=1)
-        total2[start:start + k] = np.square(w).sum(axis=1)
-    mean = total / n
-    var = np.maximum(total2 / n - mean ** 2, 0.0) * (n / (n - 1) if n > 1 else 0.0)
+        mean[start:start + k] = w.mean(axis=1)
+        if n > 1:
+            var[start:start + k] = w.var(axis=1, ddof=1)   # two-pass: no cancellation
     return AlbedoEstimate(mean, np.sqrt(var / n), n)
 
 
