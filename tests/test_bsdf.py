@@ -11,6 +11,7 @@ from scipy import stats
 
 import mcvar.bsdf as B
 from mcvar.geometry import spherical_to_direction
+from mcvar.testing import check_weight_consistency, chi2_test
 
 SEED = 20240917_4
 Z = 5.0
@@ -346,6 +347,33 @@ def test_sample_matches_pdf(name, theta, record_property):
     assert p > SIDAK
     frac = live.mean() + delta.mean()
     assert abs(mass + delta.mean() - frac) <= Z * np.sqrt(frac * (1 - frac) / n) + 0.01 * mass
+
+
+@pytest.mark.parametrize("name", [k for k in NON_DELTA if k != "plastic"])
+def test_public_weight_consistency_check(name):
+    """mcvar.testing's check (weight = eval |cos| / pdf, sample pdf = pdf()) on pure non-delta models."""
+    m = NON_DELTA[name]()
+    rng = np.random.default_rng(SEED)
+    r = check_weight_consistency(m, _random_upper(rng, 20000), n=20000, rng=rng, rtol=1e-9)
+    assert r.passed, r.message
+
+
+@pytest.mark.parametrize("make,wo", [
+    (lambda: B.Lambertian(0.5), _dirs(1.2)[0]),
+    (lambda: B.Lambertian(0.5), np.array([1.0, 0.0, 0.0])),            # grazing wo
+    (lambda: B.Retroreflective(0.5, 6.0), np.array([0.0, 1.0, 0.0])),  # lobe about the normal: no failures
+])
+def test_public_chi2_test(make, wo, record_property):
+    m = make()
+    wo = wo / np.linalg.norm(wo)
+    if wo[1] > 0:
+        pdf = lambda d: m.pdf(np.repeat(wo[None], len(d), 0), d)   # noqa: E731
+    else:   # at exactly grazing wo a one-sided BRDF is 0; the sampler's density is still cos/pi
+        pdf = lambda d: np.maximum(d[:, 1], 0.0) / np.pi            # noqa: E731
+    r = chi2_test(lambda u: m.sample(np.repeat(wo[None], len(u), 0), u).wi, pdf, "hemisphere",
+                  n=100_000, rng=np.random.default_rng(SEED), significance=1e-3, test_count=3)
+    record_property("chi2_pvalue_public", r.pvalue)
+    assert r.passed, r.message
 
 
 def test_glass_lobe_frequencies_follow_fresnel():
