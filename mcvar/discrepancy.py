@@ -151,9 +151,10 @@ def l2_star(points, *, squared: bool = False) -> float:
     ``T^2 = 3^-d - 2^(1-d) / n sum_i prod_k (1 - x_ik^2)
     + 1 / n^2 sum_i sum_j prod_k (1 - max(x_ik, x_jk))``.
 
-    Computed here in blocks of rows (O(n^2 d) time). Equals
-    ``scipy.stats.qmc.discrepancy(points, method="L2-star")``, which returns
-    T (not squared), to rounding.
+    Evaluated by ``scipy.stats.qmc.discrepancy(points, method="L2-star")``
+    (compiled, O(n^2 d)), which returns T, the root, whereas scipy's "CD",
+    "WD" and "MD" return squares; the tests check it against a direct NumPy
+    evaluation of the formula above.
 
     References
     ----------
@@ -162,22 +163,8 @@ def l2_star(points, *, squared: bool = False) -> float:
     """
     pts = _unit_points(points)
     sq = _check_bool(squared, "squared")
-    n, d = pts.shape
-    pair_sum = 0.0
-    cols = np.ascontiguousarray(pts.T)
-    for a0 in range(0, n, _BLOCK):
-        block = cols[:, a0:a0 + _BLOCK]
-        acc = np.ones((block.shape[1], n))
-        tmp = np.empty_like(acc)
-        for k in range(d):  # prod_k (1 - max(x_ik, x_jk)), in place
-            np.maximum(block[k][:, None], cols[k][None, :], out=tmp)
-            np.subtract(1.0, tmp, out=tmp)
-            acc *= tmp
-        pair_sum += float(acc.sum())
-    single = float(np.sum(np.prod(1.0 - pts ** 2, axis=1)))
-    value = 3.0 ** -d - 2.0 ** (1 - d) / n * single + pair_sum / n ** 2
-    value = max(value, 0.0)  # rounding can leave -1e-17 for perfect sets
-    return value if sq else math.sqrt(value)
+    value = float(qmc.discrepancy(pts, method="L2-star"))  # scipy returns T, the root
+    return value ** 2 if sq else value
 
 
 def _scipy_squared(points, method: str, squared) -> float:
@@ -289,6 +276,11 @@ def is_net(points, m: int, base: int = 2, *, t: int = 0) -> bool:
     Hammersley points with n = 2^m are (0, m, 2)-nets in base 2, hence star
     discrepancy O(log n / n).
 
+    Points of nets sit on cell boundaries a / b^k, which are exact in binary
+    floating point only for b = 2 (``radical_inverse(1, 3)`` is 1/3 rounded
+    down); a coordinate within a relative 1e-12 below a boundary is counted
+    in the cell above it.
+
     References
     ----------
     H. Niederreiter, "Random Number Generation and Quasi-Monte Carlo
@@ -313,9 +305,13 @@ def is_net(points, m: int, base: int = 2, *, t: int = 0) -> bool:
     if not (np.all(pts >= 0.0) and np.all(pts < 1.0)):
         raise ValueError("points must lie in [0, 1)^2 (an elementary interval is half-open)")
     cells = b ** (m - t)
+
+    def cell(x, scale):  # see Notes: boundaries a / b^k in floating point
+        return np.minimum(np.floor(x * scale * (1.0 + 1e-12)), scale - 1).astype(np.int64)
+
     for k in range(m - t + 1):
-        cx = np.floor(pts[:, 0] * b ** k).astype(np.int64)
-        cy = np.floor(pts[:, 1] * b ** (m - t - k)).astype(np.int64)
+        cx = cell(pts[:, 0], b ** k)
+        cy = cell(pts[:, 1], b ** (m - t - k))
         counts = np.bincount(cx * b ** (m - t - k) + cy, minlength=cells)
         if counts.size != cells or not np.all(counts == b ** t):
             return False
@@ -487,7 +483,8 @@ class PowerSpectrum:
         Mean of P over each annulus.
     radial_anisotropy : ndarray, shape (K,)
         ``var(P) / mean(P)^2`` over each annulus (Ulichney): about 1 for an
-        isotropic random spectrum, >> 1 where the power sits in spikes.
+        isotropic random spectrum, >> 1 where the power sits in spikes; 0
+        for an annulus without power (mean below 1e-12 n, rounding noise).
     anisotropy : float
         Mean of ``radial_anisotropy`` over annuli 1 ... K.
     n : int
@@ -564,7 +561,8 @@ def power_spectrum(points, *, k_max: int | None = None) -> PowerSpectrum:
     squares = np.bincount(ring[valid], weights=power[valid] ** 2, minlength=kmax + 1)[1:]
     mean = sums / counts
     var = squares / counts - mean ** 2
+    silent = mean <= 1e-12 * n  # an annulus with only rounding noise (e.g. a grid's) has none
     with np.errstate(divide="ignore", invalid="ignore"):
-        aniso = np.where(mean > 0, np.maximum(var, 0.0) / mean ** 2, 0.0)
+        aniso = np.where(silent, 0.0, np.maximum(var, 0.0) / mean ** 2)
     return PowerSpectrum(freqs, power, np.arange(1, kmax + 1, dtype=np.float64), mean, aniso,
                          float(np.mean(aniso)), n)
