@@ -285,7 +285,7 @@ def _cell_integrals(pdf, domain, lo0, hi0, lo1, hi1, q):
     return integral, good, vals
 
 
-def _expected_counts(pdf, domain, edges, n, q_max=512, budget=8_000_000):
+def _expected_counts(pdf, domain, edges, n, q_max=512, budget=4_000_000):
     """Per-cell adaptive Gauss-Legendre: ``q`` doubles only in the cells whose
     expected count is still changing (a discontinuity of the pdf inside them).
 
