@@ -486,7 +486,7 @@ class PowerSpectrum:
         isotropic random spectrum, >> 1 where the power sits in spikes; 0
         for an annulus without power (mean below 1e-12 n, rounding noise).
     anisotropy : float
-        Mean of ``radial_anisotropy`` over annuli 1 ... K.
+        Mean of ``radial_anisotropy`` over the annuli 1 ... K that hold power.
     n : int
         Number of points.
     """
@@ -564,5 +564,6 @@ def power_spectrum(points, *, k_max: int | None = None) -> PowerSpectrum:
     silent = mean <= 1e-12 * n  # an annulus with only rounding noise (e.g. a grid's) has none
     with np.errstate(divide="ignore", invalid="ignore"):
         aniso = np.where(silent, 0.0, np.maximum(var, 0.0) / mean ** 2)
+    overall = float(np.mean(aniso[~silent])) if np.any(~silent) else 0.0
     return PowerSpectrum(freqs, power, np.arange(1, kmax + 1, dtype=np.float64), mean, aniso,
-                         float(np.mean(aniso)), n)
+                         overall, n)
