@@ -1,0 +1,273 @@
+"""Integrators: analytic scenes (furnace, quad under a constant sky), the
+estimators' agreement in expectation, the lecture's spp / depth comparisons,
+determinism, processes, interruption and bad input.
+
+Tolerances: Z = 5 standard errors (two-sided alpha = 5.7e-7 for a normal
+mean); for means over R replicates, Student's t with R - 1 degrees of
+freedom at 5 gives alpha = 1.6e-4 for R = 16. Standard errors of pixel
+means come from the render's own per-sample variance (iid 'random' sampler:
+pixels are independent, so an image mean's variance is the sum of the pixel
+variances over n_pixels^2).
+"""
+import numpy as np
+import pytest
+
+from mcvar.integrators import INTEGRATORS, render, trace_paths
+from mcvar.scene import load_scene
+
+Z = 5.0
+SEED = 271828182845
+
+
+def _mean_and_se(r):
+    """Image mean per channel and its standard error from the per-pixel variances."""
+    n_pix = r.image.shape[0] * r.image.shape[1]
+    mean = r.image.mean(axis=(0, 1))
+    se = np.sqrt(r.variance.sum(axis=(0, 1)) / r.spp) / n_pix
+    return mean, se
+
+
+def _replicates(scene, integrator, R, seed, **kw):
+    """Image means of R independent renders: (R, 3)."""
+    streams = np.random.default_rng(seed).spawn(R)
+    return np.array([render(scene, integrator=integrator, rng=s, **kw).image.mean(axis=(0, 1))
+                     for s in streams])
+
+
+@pytest.fixture(scope="module")
+def cornell():
+    return load_scene("cornell")
+
+
+# -- analytic scenes -------------------------------------------------------
+
+RHO = np.array([0.3, 0.5, 0.8])
+
+
+@pytest.mark.parametrize("integrator", ["path", "path_bsdf"])
+def test_furnace_with_russian_roulette_converges_to_le_over_one_minus_rho(integrator):
+    scene = load_scene("furnace", albedo=RHO, emission=1.5)
+    r = render(scene, integrator=integrator, spp=64, res=8, rng=SEED)
+    mean, se = _mean_and_se(r)
+    expected = 1.5 / (1.0 - RHO)
+    assert np.all(np.abs(mean - expected) < Z * se), (mean, expected, se)
+
+
+@pytest.mark.parametrize("depth", [1, 2, 3, 7])
+def test_furnace_fixed_depth_is_the_truncated_geometric_sum_exactly(depth):
+    # Cosine sampling of a Lambertian BSDF has weight rho exactly and Le is the
+    # same everywhere, so with a fixed depth every sample is Le sum_{k<d} rho^k:
+    # zero variance, an exact check.
+    scene = load_scene("furnace", albedo=RHO, emission=2.0)
+    r = render(scene, integrator="path", spp=4, res=4, rng=SEED, max_depth=depth)
+    expected = 2.0 * (1.0 - RHO ** depth) / (1.0 - RHO)
+    np.testing.assert_allclose(r.image, np.broadcast_to(expected, r.image.shape), rtol=1e-12)
+
+
+def test_quad_under_constant_environment_reflects_rho_times_l():
+    pytest.importorskip("mcvar.envmap")
+    rho, sky = np.array([0.2, 0.5, 0.9]), np.array([1.0, 2.0, 0.5])
+    scene = load_scene("quad-environment", albedo=rho, radiance=sky)
+    # BSDF sampling of a Lambertian quad under a constant sky: weight rho, radiance L: exact
+    r = render(scene, integrator="direct_bsdf", spp=4, res=4, rng=SEED)
+    np.testing.assert_allclose(r.image, np.broadcast_to(rho * sky, r.image.shape), rtol=1e-12)
+    for integrator in ("direct", "direct_light", "path"):
+        r = render(scene, integrator=integrator, spp=64, res=8, rng=SEED)
+        mean, se = _mean_and_se(r)
+        assert np.all(np.abs(mean - rho * sky) <= Z * se + 1e-12), (integrator, mean, se)
+
+
+def test_every_integrator_shows_the_light_at_its_radiance(cornell):
+    # pixel (row 9, column 32) of a 64 x 64 image lies wholly on the light quad
+    # (rows 8..10, columns 27..37 by the camera formula): emission seen directly,
+    # the same for every light-transport integrator and for 'raster'.
+    for integrator in ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf", "raster"):
+        r = render(cornell, integrator=integrator, spp=2, res=64, rng=SEED)
+        np.testing.assert_allclose(r.image[9, 32], [17.0, 12.0, 4.0], rtol=1e-12, err_msg=integrator)
+
+
+def test_checkerboard_is_the_same_image_plane_integral_for_every_integrator():
+    scene = load_scene("checkerboard")
+    a = render(scene, integrator="path", spp=4, res=16, rng=SEED).image
+    b = render(scene, integrator="raster", spp=4, res=16, rng=SEED).image
+    np.testing.assert_array_equal(a, b)           # same pixel positions, emission only
+    assert a.min() >= 0.0 and a.max() <= 1.0
+    assert 0.2 < a[8:].mean() < 0.8               # the ground half shows both colours
+
+
+def test_aovs_on_the_red_wall(cornell):
+    # pixel (8, 1) of a 16 x 16 image sees only the red wall (column 0 also sees
+    # past the open front: at z = 0 it spans x = 528 ... 564 > 556)
+    alb = render(cornell, integrator="albedo", spp=4, res=16, rng=SEED).image
+    np.testing.assert_allclose(alb[8, 1], [0.63, 0.065, 0.05], rtol=1e-12)
+    nrm = render(cornell, integrator="normal", spp=4, res=16, rng=SEED).image
+    assert nrm[8, 1] @ [-1.0, 0.0, 0.0] > 0.999   # facing the inside of the room
+    dep = render(cornell, integrator="depth", spp=4, res=16, rng=SEED).image
+    # the wall lies beyond the open front z = 0, more than 800 from the camera;
+    # rays that leave the room read 0
+    assert dep[8, 1, 0] > 800.0 and np.all(dep >= 0.0)
+
+
+# -- estimators agree in expectation; MIS is no worse ------------------------
+
+def test_direct_strategies_agree_and_mis_variance_is_no_worse(cornell):
+    R = 16
+    kw = dict(spp=8, res=8)
+    means = {k: _replicates(cornell, k, R, SEED + i, **kw)
+             for i, k in enumerate(("direct", "direct_light", "direct_bsdf"))}
+    m = {k: v.mean(axis=0) for k, v in means.items()}
+    se = {k: v.std(axis=0, ddof=1) / np.sqrt(R) for k, v in means.items()}
+    for other in ("direct_light", "direct_bsdf"):
+        diff = np.abs(m["direct"] - m[other])
+        assert np.all(diff < Z * np.hypot(se["direct"], se[other])), (other, m, se)
+    # per-sample pixel variance, averaged over pixels, with its own replicate error
+    var = {}
+    for i, k in enumerate(("direct", "direct_light", "direct_bsdf")):
+        v = np.array([render(cornell, integrator=k, spp=16, res=8, rng=s).variance.mean()
+                      for s in np.random.default_rng(SEED + 10 + i).spawn(8)])
+        var[k] = (v.mean(), v.std(ddof=1) / np.sqrt(len(v)))
+    worse = max(var["direct_light"][0], var["direct_bsdf"][0])
+    worse_se = var["direct_light"][1] if var["direct_light"][0] > var["direct_bsdf"][0] else var["direct_bsdf"][1]
+    assert var["direct"][0] <= worse + Z * np.hypot(var["direct"][1], worse_se), var
+
+
+@pytest.mark.parametrize("heuristic", ["power", "balance"])
+def test_russian_roulette_agrees_with_a_deep_fixed_depth(cornell, heuristic):
+    # 0.725^40 < 1e-5: light beyond 40 segments is far below the standard error
+    R = 16
+    rr = _replicates(cornell, "path", R, SEED + 20, spp=4, res=8, heuristic=heuristic)
+    deep = _replicates(cornell, "path", R, SEED + 21, spp=4, res=8, heuristic=heuristic, max_depth=40)
+    diff = np.abs(rr.mean(0) - deep.mean(0))
+    se = np.hypot(rr.std(0, ddof=1), deep.std(0, ddof=1)) / np.sqrt(R)
+    assert np.all(diff < Z * se), (rr.mean(0), deep.mean(0), se)
+
+
+def test_path_with_and_without_light_connection_agree(cornell):
+    a = render(cornell, integrator="path", spp=32, res=8, rng=SEED + 30)
+    b = render(cornell, integrator="path_bsdf", spp=32, res=8, rng=SEED + 31)
+    (ma, sa), (mb, sb) = _mean_and_se(a), _mean_and_se(b)
+    assert np.all(np.abs(ma - mb) < Z * np.hypot(sa, sb))
+    # connecting to the light pays: lower per-sample variance
+    assert a.variance.mean() < b.variance.mean()
+
+
+def test_image_mean_matches_the_specification(cornell):
+    # CORNELL.md: the converged 64 x 64 image mean is roughly (0.196, 0.127, 0.036),
+    # given to 3 decimals (+- 0.0005 rounding) on top of our standard error.
+    r = render(cornell, integrator="path", spp=32, res=64, rng=SEED + 40)
+    mean, se = _mean_and_se(r)
+    assert np.all(np.abs(mean - [0.196, 0.127, 0.036]) < Z * se + 0.0005), (mean, se)
+
+
+def test_float32_geometry_does_not_bias_the_image(cornell):
+    a = render(cornell, integrator="path", spp=16, res=16, rng=SEED + 50, precision="float32")
+    b = render(cornell, integrator="path", spp=16, res=16, rng=SEED + 51, precision="float64")
+    (ma, sa), (mb, sb) = _mean_and_se(a), _mean_and_se(b)
+    assert np.all(np.abs(ma - mb) < Z * np.hypot(sa, sb)), (ma, mb)
+
+
+# -- the lecture's comparisons ----------------------------------------------
+
+def test_depth_8_is_brighter_than_depth_2(cornell):
+    # 'Number of Ray Bounces': depth 2 is direct light only; depth 8 adds indirect light
+    a = render(cornell, integrator="path", spp=256, res=16, rng=SEED + 60, max_depth=2)
+    b = render(cornell, integrator="path", spp=256, res=16, rng=SEED + 61, max_depth=8)
+    (ma, sa), (mb, sb) = _mean_and_se(a), _mean_and_se(b)
+    # on the sum of the channels; its SE is at most the sum of the channels' SEs
+    assert mb.sum() - ma.sum() > Z * np.hypot(sa.sum(), sb.sum()), (ma, mb)
+    # the ceiling (top row, middle) is never lit directly (the light faces down,
+    # below it): black at depth 2, lit by bounces at depth 8
+    assert a.image[0, 8].max() == 0.0 and b.image[0, 8].min() > 0.0
+
+
+def test_16_spp_is_closer_to_the_reference_than_1_spp(cornell):
+    # 'Number of Ray Samples': per pixel squared error against a reference. A
+    # sign test (fireflies make the errors heavy-tailed): if 16 spp were no
+    # better, the count of pixels where it is closer would be Binomial(n, 1/2).
+    ref = render(cornell, integrator="path", spp=256, res=16, rng=SEED + 70).image
+    one = render(cornell, integrator="path", spp=1, res=16, rng=SEED + 71).image
+    six = render(cornell, integrator="path", spp=16, res=16, rng=SEED + 72).image
+    d = ((one - ref) ** 2).sum(-1).ravel() - ((six - ref) ** 2).sum(-1).ravel()
+    d = d[d != 0]                                  # the light's pixels are exact in both
+    assert np.sum(d > 0) > d.size / 2 + Z * np.sqrt(d.size) / 2
+    assert np.mean(one.max(-1) == 0) > np.mean(six.max(-1) == 0)
+
+
+# -- determinism, processes, interruption ------------------------------------
+
+def test_same_seed_same_image_other_seed_other_image(cornell):
+    a = render(cornell, spp=4, res=8, rng=123456789, sampler="sobol")
+    b = render(cornell, spp=4, res=8, rng=123456789, sampler="sobol")
+    c = render(cornell, spp=4, res=8, rng=123456790, sampler="sobol")
+    np.testing.assert_array_equal(a.image, b.image)
+    assert not np.array_equal(a.image, c.image)
+
+
+def test_two_workers_give_the_same_image_as_one(cornell):
+    a = render(cornell, spp=8, res=8, rng=SEED, batch_spp=2, workers=1)
+    b = render(cornell, spp=8, res=8, rng=SEED, batch_spp=2, workers=2)
+    np.testing.assert_array_equal(a.image, b.image)
+    np.testing.assert_array_equal(a.variance, b.variance)
+    assert b.spp == 8 and not b.interrupted
+
+
+def test_interrupted_render_keeps_the_finished_batches(cornell):
+    calls = []
+
+    def stop_after_two(done, total):
+        calls.append(done)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    r = render(cornell, spp=12, res=8, rng=SEED, batch_spp=3, progress=stop_after_two)
+    assert r.interrupted and r.spp == 6 and calls == [3, 6]
+    # batch k uses stream k whatever the total: the same as asking for 6 spp
+    full = render(cornell, spp=6, res=8, rng=SEED, batch_spp=3)
+    np.testing.assert_array_equal(r.image, full.image)
+    assert np.all(np.isfinite(r.image))
+
+
+def test_batches_bound_memory_without_changing_the_estimate(cornell):
+    a = render(cornell, spp=16, res=8, rng=SEED + 80, batch_spp=1)
+    b = render(cornell, spp=16, res=8, rng=SEED + 81, batch_spp=16)
+    (ma, sa), (mb, sb) = _mean_and_se(a), _mean_and_se(b)
+    assert a.batch_spp == 1 and np.all(np.abs(ma - mb) < Z * np.hypot(sa, sb))
+
+
+def test_trace_paths_empty_batch(cornell):
+    rad, rays = trace_paths(cornell, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)))
+    assert rad.shape == (0, 3) and rays == 0
+
+
+# -- bad input ---------------------------------------------------------------
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"spp": 0}, "spp must be >= 1"),
+    ({"spp": -3}, "spp must be >= 1"),
+    ({"integrator": "whitted"}, "integrator must be one of"),
+    ({"sampler": "dart"}, "sampler must be one of"),
+    ({"res": 0}, "res must be >= 1"),
+    ({"res": (8, 0)}, "height"),
+    ({"max_depth": 0}, "max_depth must be >= 1"),
+    ({"heuristic": "max"}, "heuristic must be one of"),
+    ({"integrator": "direct", "max_depth": 3}, "max_depth must be None or 2"),
+    ({"integrator": "depth", "max_depth": 3}, "does not apply"),
+    ({"workers": 0}, "workers must be >= 1"),
+])
+def test_bad_input_names_the_argument(cornell, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        render(cornell, **kwargs)
+
+
+def test_bad_types(cornell):
+    with pytest.raises(TypeError, match="scene must be"):
+        render("cornell")
+    with pytest.raises(TypeError, match="res must be"):
+        render(cornell, res="64")
+    with pytest.raises(TypeError, match="spp must be an integer"):
+        render(cornell, spp=4.0)
+
+
+def test_integrator_names_are_the_documented_ones():
+    assert set(INTEGRATORS) == {"path", "path_bsdf", "direct", "direct_light", "direct_bsdf",
+                                "albedo", "normal", "depth", "raster"}
