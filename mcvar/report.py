@@ -32,14 +32,14 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .experiments import SweepResult, make_target, sweep
+from .experiments import SweepResult, make_target, scene_target, sweep
 from .plotting import plot_loglog, plt, save_figure
 
 __all__ = ["convergence_report", "demo", "write_report", "DEMO_SETTINGS"]
 
 #: What ``mcvar demo`` runs (chosen to take about two minutes on 2 cores).
-DEMO_SETTINGS = dict(methods=("path", "path:2", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64), replicates=8, res=32, seed=0)
+DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
+                     spp=(1, 4, 16, 64, 256), replicates=8, res=32, seed=0)
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
 
@@ -377,6 +377,6 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
     1, 4, 16 and 64 spp, 8 replicates, 32 x 32 pixels.
     """
     s = DEMO_SETTINGS
-    return convergence_report("cornell", out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
+    return convergence_report(scene_target("cornell", res=s["res"]), out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
                               workers=workers, progress=progress)
