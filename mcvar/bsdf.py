@@ -932,28 +932,62 @@ def _diffuse_fresnel_reflectance(eta: float, order: int = 96) -> float:
     return float(np.sum(0.5 * w * 2.0 * mu * fresnel_dielectric(mu, 1.0, eta)))
 
 
-class Plastic(BSDF):
-    """Plastic: a Lambertian base under a smooth dielectric coat (mixed delta / diffuse).
+class _DielectricCoat(Microfacet):
+    """Isotropic GGX reflection off a rough dielectric (exact Fresnel, untinted)."""
 
-    Light either reflects specularly off the coat (a Dirac delta with weight
-    ``specular * F(cos_o)``), or enters it, scatters in the base, possibly
-    bounces between base and coat, and leaves; that diffuse part is::
+    def __init__(self, alpha, eta):
+        super().__init__(alpha, distribution="ggx")
+        self.eta = eta
+
+    def fresnel(self, cos_h):
+        f = fresnel_dielectric(np.clip(np.asarray(cos_h, dtype=np.float64), 0.0, 1.0), 1.0, self.eta)
+        return np.repeat(f[:, None], 3, axis=1)
+
+
+#: cosines at which a rough coat's directional albedo E(mu) is tabulated
+#: (denser towards grazing, where E changes fastest)
+_E_MU = ((np.arange(48) + 0.5) / 48) ** 2
+
+
+class Plastic(BSDF):
+    """Plastic: a Lambertian base under a dielectric coat, smooth or rough.
+
+    Light either reflects off the coat, or enters it, scatters in the base
+    (albedo ``rho``), possibly bounces between base and coat, and leaves.
+
+    *Smooth coat* (``alpha = 0``, default): the coat reflection is a Dirac
+    delta with weight ``specular * F(cos_o)`` (exact Fresnel ``F``), and the
+    diffuse part is::
 
         f_d = (1 - F(cos_o)) (1 - F(cos_i)) rho / (pi eta^2 (1 - rho F_dr,int))
 
-    with ``F`` the exact Fresnel reflectance from outside and ``F_dr,int`` the
-    hemispherical-average internal reflectance. It is reciprocal, and the
-    directional albedo is exactly ``specular F_o + (1 - F_o) rho (1 -
-    F_dr,int) / (1 - rho F_dr,int) <= 1`` (the infinite series of internal
-    bounces summed). The lecture's plastic: flipped *and* averaged.
+    with ``F_dr,int`` the hemispherical-average reflectance of the coat seen
+    from inside, ``1 - F_dr,int = (1 - F_dr,ext) / eta^2``. It is reciprocal,
+    and the directional albedo is exactly ``specular F_o + (1 - F_o)
+    rho_eff`` with ``rho_eff = rho (1 - F_dr,int) / (1 - rho F_dr,int)`` (the
+    series of internal bounces summed), <= 1. The lecture's plastic: flipped
+    (delta) and averaged (diffuse). ``is_delta`` False, ``has_delta`` True:
+    ``eval``/``pdf`` are the diffuse part only.
 
-    ``is_delta`` is False and ``has_delta`` True: ``eval`` and ``pdf`` are
-    the diffuse part only; next-event estimation uses them, and the specular
-    lobe is found only by ``sample``. The lobe is chosen with ``u[:, 0]``:
-    specular with probability ``P = s F_o / (s F_o + (1 - F_o) mean(rho_eff))``
-    (``s`` the mean specular tint), otherwise diffuse with ``u0`` rescaled to
-    ``(u0 - P) / (1 - P)`` and cosine-weighted sampling; the diffuse ``pdf``
-    (returned and given by ``pdf``) includes the factor ``1 - P``.
+    *Rough coat* (``alpha > 0``): the coat is isotropic GGX reflection with
+    exact dielectric Fresnel (:class:`Microfacet` machinery), its directional
+    albedo ``E(mu)`` is tabulated at construction (deterministic stratified
+    sampling), and the base couples through it as in Kelemen &
+    Szirmay-Kalos (2001)::
+
+        f_d = rho_eff (1 - E(mu_o)) (1 - E(mu_i)) / (pi (1 - E_avg))
+
+    which is reciprocal and keeps the albedo ``specular E_o + (1 - E_o)
+    rho_eff <= 1``; for a smooth coat ``E = F`` and this is the formula above.
+    The reflection is flipped *and blurred*. Both lobes are continuous:
+    ``has_delta`` False, ``eval``/``pdf`` cover everything.
+
+    Sampling chooses the coat with probability ``P = s E_o / (s E_o + (1 -
+    E_o) mean(rho_eff))`` (``s`` the mean specular tint) from ``u[:, 0]``,
+    rescaled to ``u0 / P`` or ``(u0 - P) / (1 - P)`` for the chosen lobe.
+    Smooth: the delta sample has ``pdf = P`` (discrete), the diffuse one
+    ``(1 - P) cos / pi``. Rough: ``pdf`` is the mixture ``P p_coat + (1 - P)
+    cos / pi`` whichever lobe drew ``wi``, and ``weight = f cos / pdf``.
 
     Parameters
     ----------
@@ -961,6 +995,8 @@ class Plastic(BSDF):
         Albedo ``rho`` of the base, in [0, 1].
     eta : float
         Index of the coat, >= 1.
+    alpha : float
+        GGX roughness of the coat in [0, 1]; 0 is smooth.
     specular : float or array_like, shape (3,)
         Tint of the coat reflection, in [0, 1] (1 for a physical dielectric).
 
@@ -968,17 +1004,20 @@ class Plastic(BSDF):
     ----------
     .. [1] A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces",
        GRAPHITE 2007.
-    .. [2] W. Jakob et al., Mitsuba renderer documentation, 'Smooth plastic
-       material (plastic)', 2010-2022.
+    .. [2] C. Kelemen, L. Szirmay-Kalos, "A Microfacet Based Coupled
+       Specular-Matte BRDF Model with Importance Sampling", Eurographics
+       2001 short papers.
+    .. [3] W. Jakob et al., Mitsuba renderer documentation, 'Smooth plastic
+       material (plastic)'.
     """
 
-    has_delta = True
-
-    def __init__(self, diffuse=0.5, *, eta=1.5, specular=1.0):
+    def __init__(self, diffuse=0.5, *, eta=1.5, alpha=0.0, specular=1.0):
         self.diffuse = _rgb(diffuse, "diffuse")
         self.eta = check_positive(eta, "eta")
         if not self.eta >= 1.0:
             raise ValueError(f"eta of a plastic coat must be >= 1; got {self.eta}")
+        alpha = check_positive(alpha, "alpha", allow_zero=True)
+        self.alpha = 0.0 if alpha == 0.0 else _alpha(alpha, "alpha")
         self.specular = _rgb(specular, "specular")
         self.fdr_ext = _diffuse_fresnel_reflectance(self.eta)
         #: hemispherical-average reflectance of the coat seen from inside,
@@ -986,46 +1025,94 @@ class Plastic(BSDF):
         self.fdr_int = 1.0 - (1.0 - self.fdr_ext) / self.eta ** 2
         #: the base's albedo after all internal bounces
         self.effective_albedo = self.diffuse * (1.0 - self.fdr_int) / (1.0 - self.diffuse * self.fdr_int)
-        self._scale = self.effective_albedo / (np.pi * (1.0 - self.fdr_ext))
+        self.has_delta = self.alpha == 0.0
+        if self.has_delta:
+            self._coat = None
+            e_avg = self.fdr_ext
+        else:
+            self._coat = _DielectricCoat(self.alpha, self.eta)
+            self._e_table = self._tabulate_coat_albedo()
+            # E is piecewise linear in mu: Simpson on each piece is exact
+            mu = np.concatenate([[0.0], _E_MU, [1.0]])
+            mid = 0.5 * (mu[:-1] + mu[1:])
+            g = 2.0 * mu * self._coat_albedo(mu)
+            gm = 2.0 * mid * self._coat_albedo(mid)
+            e_avg = float(np.sum(np.diff(mu) / 6.0 * (g[:-1] + 4.0 * gm + g[1:])))
+        #: hemispherical average of the coat's albedo (F_dr,ext when smooth)
+        self.coat_average = e_avg
+        self._scale = self.effective_albedo / (np.pi * (1.0 - e_avg))
+
+    def _tabulate_coat_albedo(self, k: int = 48) -> np.ndarray:
+        g = (np.arange(k) + 0.5) / k
+        u = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+        sin = np.sqrt(1.0 - _E_MU ** 2)
+        wo = np.repeat(np.stack([sin, _E_MU, np.zeros_like(sin)], -1), len(u), axis=0)
+        weight = self._coat._sample(wo, np.tile(u, (len(_E_MU), 1)))[1][:, 0]
+        return weight.reshape(len(_E_MU), -1).mean(axis=1)
+
+    def _coat_albedo(self, mu):
+        """Directional albedo ``E(mu)`` of the coat alone (exact Fresnel when smooth)."""
+        mu = np.clip(np.asarray(mu, dtype=np.float64), 0.0, 1.0)
+        if self._coat is None:
+            return fresnel_dielectric(mu, 1.0, self.eta)
+        return np.interp(mu, _E_MU, self._e_table)
 
     def _params(self):
-        return {"diffuse": self.diffuse, "eta": self.eta, "specular": self.specular}
-
-    def _fresnel(self, c):
-        return fresnel_dielectric(np.clip(c, 0.0, 1.0), 1.0, self.eta)
+        return {"diffuse": self.diffuse, "eta": self.eta, "alpha": self.alpha, "specular": self.specular}
 
     def specular_probability(self, cos_o) -> np.ndarray:
-        """Probability ``P`` of choosing the specular lobe for outgoing cosines ``cos_o``."""
-        f = self._fresnel(np.asarray(cos_o, dtype=np.float64))
-        a = np.mean(self.specular) * f
-        b = (1.0 - f) * np.mean(self.effective_albedo)
-        return np.divide(a, a + b, out=np.zeros_like(f), where=(a + b) > 0.0)
+        """Probability ``P`` of choosing the coat lobe for outgoing cosines ``cos_o``."""
+        e = self._coat_albedo(cos_o)
+        a = np.mean(self.specular) * e
+        b = (1.0 - e) * np.mean(self.effective_albedo)
+        return np.divide(a, a + b, out=np.zeros_like(e), where=(a + b) > 0.0)
+
+    def _diffuse(self, co, ci):
+        ok = (co > 0.0) & (ci > 0.0)
+        t = (1.0 - self._coat_albedo(co)) * (1.0 - self._coat_albedo(ci))
+        return np.where(ok[:, None], t[:, None] * self._scale, 0.0)
 
     def _eval(self, wo, wi):
-        co, ci = wo[:, 1], wi[:, 1]
-        ok = (co > 0.0) & (ci > 0.0)
-        t = (1.0 - self._fresnel(co)) * (1.0 - self._fresnel(ci))
-        return np.where(ok[:, None], t[:, None] * self._scale, 0.0)
+        f = self._diffuse(wo[:, 1], wi[:, 1])
+        if self._coat is not None:
+            f = f + self.specular * self._coat._eval(wo, wi)
+        return f
 
     def _pdf(self, wo, wi):
         co, ci = wo[:, 1], wi[:, 1]
         ok = (co > 0.0) & (ci > 0.0)
         p = self.specular_probability(co)
-        return np.where(ok, (1.0 - p) * square_to_cosine_hemisphere_pdf(wi), 0.0)
+        pdf = (1.0 - p) * square_to_cosine_hemisphere_pdf(wi)
+        if self._coat is not None:
+            pdf = pdf + p * self._coat._pdf(wo, wi)
+        return np.where(ok, pdf, 0.0)
 
     def _sample(self, wo, u):
         co = wo[:, 1]
         above = co > 0.0
-        f_o = self._fresnel(co)
         p = self.specular_probability(co)
         spec = u[:, 0] < p
         u_d = np.column_stack([np.clip(np.divide(u[:, 0] - p, 1.0 - p, out=np.zeros(len(p)), where=p < 1.0),
                                        0.0, 1.0), u[:, 1]])
         wd = square_to_cosine_hemisphere(u_d)
+        if self._coat is None:
+            return self._sample_smooth(wo, wd, p, spec, above)
+        u_s = np.column_stack([np.clip(np.divide(u[:, 0], p, out=np.zeros(len(p)), where=p > 0.0), 0.0, 1.0),
+                               u[:, 1]])
+        ws = self._coat._sample(wo, u_s)[0]
+        wi = np.where(spec[:, None], ws, wd)
+        pdf = self._pdf(wo, wi)
+        ok = above & (wi[:, 1] > 0.0) & (pdf > 0.0)
+        f = self._eval(wo, wi)
+        weight = np.where(ok[:, None], f * np.divide(wi[:, 1], pdf, out=np.zeros(len(p)), where=ok)[:, None], 0.0)
+        return wi, weight, np.where(ok, pdf, 0.0), np.zeros(len(wo), dtype=bool)
+
+    def _sample_smooth(self, wo, wd, p, spec, above):
+        f_o = self._coat_albedo(wo[:, 1])
         ci = wd[:, 1]
         pdf_d = (1.0 - p) * square_to_cosine_hemisphere_pdf(wd)
         ok_d = above & ~spec & (ci > 0.0) & (pdf_d > 0.0)
-        t = np.divide((1.0 - f_o) * (1.0 - self._fresnel(ci)), 1.0 - p, out=np.zeros(len(p)), where=ok_d)
+        t = np.divide((1.0 - f_o) * (1.0 - self._coat_albedo(ci)), 1.0 - p, out=np.zeros(len(p)), where=ok_d)
         w_d = t[:, None] * self._scale * np.pi
         w_s = np.divide(f_o, p, out=np.zeros(len(p)), where=p > 0.0)[:, None] * self.specular
         ok_s = above & spec

@@ -40,6 +40,7 @@ NON_DELTA = {
     "copper-rough": lambda: B.Conductor.preset("copper", alpha_x=0.25),
     "gold-aniso": lambda: B.Conductor.preset("gold", alpha_x=0.4, alpha_y=0.15),
     "plastic": lambda: B.Plastic((0.8, 0.2, 0.2)),
+    "plastic-rough": lambda: B.Plastic((0.2, 0.8, 0.2), alpha=0.2),
     "retro": lambda: B.Retroreflective(0.9, 8.0),
     "ggx-rough1": lambda: B.Microfacet(1.0),
 }
@@ -279,6 +280,11 @@ def test_plastic_albedo_closed_form():
     # white base: everything comes back out
     white = B.Plastic(1.0)
     np.testing.assert_allclose(white.effective_albedo, 1.0)
+    # rough coat (Kelemen-coupled): a white base still conserves energy exactly, grazing included
+    wo = _dirs(GRAZING)
+    for alpha in (0.05, 1.0):
+        mc = B.directional_albedo(B.Plastic(1.0, alpha=alpha), wo, n=40000, rng=SEED)
+        assert np.all(np.abs(mc.mean - 1.0) <= Z * mc.standard_error), (alpha, mc.mean[:, 0])
 
 
 def test_delta_albedo_values():
@@ -322,8 +328,8 @@ def _chi2_pvalue(sample_wi, pdf_fn, n, n_mu=12, n_phi=24, sub=6):
     return stats.chi2.sf(stat, len(e) - 1), expected.sum() / n
 
 
-CHI2_MODELS = ["lambertian", "ggx", "ggx-aniso", "beckmann", "copper-rough", "gold-aniso", "plastic", "retro",
-               "ggx-rough1"]
+CHI2_MODELS = ["lambertian", "ggx", "ggx-aniso", "beckmann", "copper-rough", "gold-aniso", "plastic",
+               "plastic-rough", "retro", "ggx-rough1"]
 SIDAK = 1 - (1 - 1e-3) ** (1 / (2 * len(CHI2_MODELS)))
 
 
@@ -448,7 +454,7 @@ def test_anisotropy_is_measurable():
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     a = 0.9
     rot = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])
-    for name in ("lambertian", "ggx", "beckmann", "plastic", "retro", "copper-rough"):
+    for name in ("lambertian", "ggx", "beckmann", "plastic", "plastic-rough", "retro", "copper-rough"):
         m = NON_DELTA[name]()
         np.testing.assert_allclose(m.eval(wo @ rot.T, wi @ rot.T), m.eval(wo, wi), rtol=1e-9, atol=1e-14)
     for name in ("ggx-aniso", "gold-aniso"):
@@ -545,3 +551,5 @@ def test_bad_input():
         B.exitant_radiance(B.Mirror(), -np.ones((4, 4, 3)))
     with pytest.raises(ValueError, match="eta of a plastic coat"):
         B.Plastic(eta=0.9)
+    with pytest.raises(ValueError, match="alpha must be finite and >= 0"):
+        B.Plastic(alpha=-0.1)
