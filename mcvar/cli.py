@@ -109,11 +109,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Render a scene with one integrator and sampler. .npy holds "
                                    "linear radiance (H, W, 3), row 0 at the top; .png is tonemapped "
                                    "to sRGB; .exr is linear. Ctrl-C keeps the spp finished so far.")
-    p.add_argument("scene", help="scene name, e.g. cornell, cornell-spheres")
+    p.add_argument("scene", help="scene name: cornell, cornell-spheres, checkerboard, furnace, quad-environment")
     p.add_argument("--res", type=int, default=64, help="image width and height in pixels (default 64)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    p.add_argument("--integrator", default="path", help="path, path_bsdf, direct_light, direct_bsdf, "
-                                                          "direct_mis, albedo, normal, depth, raster")
+    p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
+                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster")
     p.add_argument("--sampler", default="random", help="pixel sampler name from mcvar.samplers (default random)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,

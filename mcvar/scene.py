@@ -532,12 +532,12 @@ def quad_environment_scene(albedo=0.5, radiance=1.0, resolution=(8, 16)) -> Scen
     ``rho / pi * L * integral(cos) = rho L`` (the lecture's 'Diffuse Exitant
     Radiance'); there are no interreflections.
     """
-    from .envmap import EnvironmentMap
+    from .envmap import constant
 
     rho = _rgb(albedo, "albedo")
     le = _rgb(radiance, "radiance")
     h, w = resolution
-    env = EnvironmentMap(np.broadcast_to(le, (h, w, 3)).copy())
+    env = constant(le, height=h, width=w)
     quad = np.array([(-1.0, 0.0, -1.0), (-1.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 0.0, -1.0)])
     return Scene(
         name="quad-environment", description="Lambertian quad under a constant environment",
