@@ -43,6 +43,7 @@ __all__ = [
     "SweepResult",
     "SerialExecutor",
     "integrand_target",
+    "lecture_target",
     "scene_target",
     "make_target",
     "parse_method",
@@ -137,6 +138,63 @@ def integrand_target(name: str) -> Target:
                   spp=tuple(4 ** k for k in range(7)), exact=np.array([float(problem.exact)]))
 
 
+def _to_board(u):
+    """[0, 1)^2 -> the lecture's [0, 2)^2 board (uniform, pdf 1/4)."""
+    return 2.0 * u
+
+
+_BOARD = dict(lower=(0.0, 0.0), upper=(2.0, 2.0))
+
+
+def _lecture_evaluate(method: str, sampler: str, spp: int, rng) -> np.ndarray:
+    from .examples import PROBLEMS, checkerboard, fixed_grid_estimate, single_sample_estimate, \
+        undivided_estimate
+    from .samplers import get_sampler
+
+    if method == "uniform":
+        points = get_sampler(sampler)(spp, rng=rng)
+        return np.array([PROBLEMS["checkerboard"].methods["uniform"](points).mean()])
+    if method == "grid":
+        m = int(np.sqrt(spp))
+        if m * m != spp:
+            raise ValueError(f"spp must be a perfect square for the 'grid' estimator; got {spp}")
+        return np.array([fixed_grid_estimate(checkerboard, m, **_BOARD)])
+    if method == "single":
+        return np.array([single_sample_estimate(checkerboard, rng=rng, **_BOARD)])
+    if method == "undivided":
+        return np.array([undivided_estimate(checkerboard, sample=_to_board, n=spp, sampler=sampler,
+                                            rng=rng).mean])
+    raise ValueError(f"method must be one of ('uniform', 'grid', 'single', 'undivided'); got {method!r}")
+
+
+def lecture_target() -> Target:
+    """The lecture's estimators of the checkerboard integral (exact value 2).
+
+    Methods, one per cell of the 'Bias & Consistency' / 'Consistent Or
+    Unbiased?' / 'Biased vs. Unbiased Example' slides:
+
+    * ``'uniform'``: plain Monte Carlo, ``4 f(2u)`` averaged over N points of
+      the sampler: unbiased and consistent;
+    * ``'grid'``: the fixed ``m x m`` grid, ``m = sqrt(N)``
+      (:func:`mcvar.examples.fixed_grid_estimate`): consistent but biased
+      (by ``2 / m^2`` for odd ``m``), deterministic;
+    * ``'single'``: one random sample times the area, whatever N
+      (:func:`mcvar.examples.single_sample_estimate`): unbiased, not
+      consistent;
+    * ``'undivided'``: the mean of ``f(X)`` without dividing by the pdf
+      (:func:`mcvar.examples.undivided_estimate`): converges to 1/2, not 2,
+      neither unbiased nor consistent.
+
+    Default N: odd squares 1, 9, 49, 225, 961 (so the grid's bias is not 0).
+    The name for :func:`make_target` is ``'lecture'``.
+    """
+    from .examples import CHECKERBOARD_INTEGRAL
+
+    return Target(name="lecture", evaluate=_lecture_evaluate, key="lecture-checkerboard-v1",
+                  methods=("uniform", "grid", "single", "undivided"), samplers=("random",),
+                  spp=(1, 9, 49, 225, 961), exact=np.array([float(CHECKERBOARD_INTEGRAL)]))
+
+
 _METHOD = re.compile(r"^([a-z_]+)(?::(\d+))?$")
 
 
@@ -215,15 +273,17 @@ def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, referen
 
 
 def make_target(name, *, res: int = 32) -> Target:
-    """A :class:`Target` from a name: an integrand of ``mcvar.examples.PROBLEMS``
-    if it is one, otherwise a scene of ``mcvar.scene.load_scene``; a
-    :class:`Target` is returned as is."""
+    """A :class:`Target` from a name: ``'lecture'`` (:func:`lecture_target`), an
+    integrand of ``mcvar.examples.PROBLEMS``, otherwise a scene of
+    ``mcvar.scene.load_scene``; a :class:`Target` is returned as is."""
     if isinstance(name, Target):
         return name
     if not isinstance(name, str):
         raise TypeError(f"target must be a Target or a name string; got {type(name).__name__}")
     from .examples import PROBLEMS
 
+    if name == "lecture":
+        return lecture_target()
     if name in PROBLEMS:
         return integrand_target(name)
     try:
@@ -566,7 +626,10 @@ def _fit(x, y):
     keep = np.isfinite(y) & (y > 0)
     if keep.sum() < 3:
         return None
-    return loglog_fit(x[keep], y[keep])
+    fit = loglog_fit(x[keep], y[keep])
+    if not np.isfinite(fit.slope_stderr):  # points exactly on a flat line: no residual
+        fit = LogLogFit(fit.slope, fit.intercept, 0.0, fit.n)
+    return fit
 
 
 def _decreases(first: ConfigMetrics, last: ConfigMetrics, name: str, alpha: float) -> bool:

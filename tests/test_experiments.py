@@ -257,3 +257,61 @@ def test_fixed_depth_path_tracing_is_biased_and_russian_roulette_is_not():
     assert all(m.bias_pvalue > result.alpha_family for m in rr)
     assert result.verdicts["path"].label == "both"
     assert result.verdicts["path:2"].label == "neither"  # its MSE levels off at the squared bias
+
+
+# ---------------------------------------------------------------- integrands (mcvar.examples)
+
+def test_plain_random_monte_carlo_variance_falls_as_one_over_n():
+    """Checkerboard, uniform sampling: Var = 4 / N ('Variance Reduction
+    Example': integrand variance 1/4, contribution 4 f, so 16 / 4 per sample)."""
+    result = ex.sweep("checkerboard", methods=("uniform",), samplers=("random",), replicates=32,
+                      seed=1618033, workers=1, progress=False)
+    fit = result.fits[("uniform", "random")].variance
+    lo, hi = fit.slope_ci(1 - 1e-3)  # Student t, n - 2 dof, from the fit's residuals
+    assert lo <= -1 <= hi
+    # each level: R - 1 = 31 dof; the sample variance of a 0/4-valued mean is
+    # not Gaussian, so use its exact sampling sd sqrt(mu4/R - s^4 (R-3)/(R(R-1)))
+    for m in result.metrics:
+        r, n = m.replicates, m.spp
+        var = 4.0 / n
+        # fourth central moment of the mean of n iid contributions 4 f = 2 +- 2
+        # (sigma^2 = 4, mu4 = 16): mu4 / n^3 + 3 (n - 1) sigma^4 / n^3
+        mu4 = (16.0 + 3 * (n - 1) * 16.0) / n ** 3
+        sd = np.sqrt(mu4 / r - var ** 2 * (r - 3) / (r * (r - 1)))
+        assert abs(m.variance - var) < Z * sd, m
+    assert result.verdicts["uniform"].label == "both"
+
+
+def test_stratified_and_qmc_beat_random_on_a_smooth_integrand():
+    """exp(xy) on [0,1]^2: jittered sampling's variance falls like N^-2 in 2D
+    (Mitchell 1996), scrambled Sobol's faster still; random stays at N^-1."""
+    result = ex.sweep("exp_xy", samplers=("random", "jittered", "sobol"), spp=(4, 16, 64, 256, 1024, 4096),
+                      replicates=16, seed=577215, workers=1, progress=False)
+    fit = {s: result.fits[("uniform", s)].variance for s in result.samplers}
+    # one-sided test that the slope is steeper than random's: the difference
+    # over its standard error against Student t with 2 (n - 2) dof at 1 - 1e-3
+    for s in ("jittered", "sobol"):
+        t = (fit["random"].slope - fit[s].slope) / np.hypot(fit["random"].slope_stderr, fit[s].slope_stderr)
+        assert t > stats.t.ppf(1 - 1e-3, 2 * (fit[s].n - 2)), (s, fit[s], fit["random"])
+    # from N = 16 on, the variance ratio random / other exceeds the F(R-1, R-1)
+    # quantile at 1 - 1e-3: the improvement is significant, level by level
+    # (at N = 4 two strata per axis gain only a factor 3-7)
+    f_crit = stats.f.ppf(1 - 1e-3, 15, 15)
+    for n in result.spp[1:]:
+        v = {m.sampler: m.variance for m in result.metrics if m.spp == n}
+        assert v["random"] / v["jittered"] > f_crit and v["random"] / v["sobol"] > f_crit
+
+
+def test_the_lectures_estimators_get_the_lectures_verdicts():
+    """'Bias & Consistency', 'Consistent Or Unbiased?', 'Biased vs. Unbiased
+    Example': plain MC is both, the m x m grid consistent only, one sample
+    times the area unbiased only, not dividing by the pdf neither."""
+    result = ex.sweep("lecture", replicates=16, seed=141421, workers=1, progress=False)
+    labels = {m: v.label for m, v in result.verdicts.items()}
+    assert labels == {"uniform": "both", "grid": "consistent", "single": "unbiased", "undivided": "neither"}
+    grid = [m for m in result.metrics if m.method == "grid"]
+    # fixed_grid_estimate's bias on the board is exactly 2 / m^2 for odd m
+    for m in grid:
+        assert m.variance == 0 and m.bias == pytest.approx(2 / m.spp, rel=1e-12)
+    undivided = [m for m in result.metrics if m.method == "undivided"]
+    assert undivided[-1].bias == pytest.approx(0.5 - 2.0, abs=Z * undivided[-1].bias_stderr)
