@@ -77,6 +77,13 @@ def _panels(n: int):
     return fig, axes[0]
 
 
+def _legend(ax, empty: str, fontsize: int = 7) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=fontsize)
+    else:
+        ax.text(0.5, 0.5, empty, transform=ax.transAxes, ha="center", va="center", fontsize=9)
+
+
 def _plot_variance(result: SweepResult, path: Path, xlabel: str) -> Path:
     fig, axes = _panels(len(result.methods))
     for ax, method in zip(axes, result.methods):
@@ -93,7 +100,7 @@ def _plot_variance(result: SweepResult, path: Path, xlabel: str) -> Path:
             ax.plot(x, first[0].variance * x[0] / x, color="0.6", lw=0.8, ls=":", label="slope -1")
         ax.set_title(method)
         ax.set_xlabel(xlabel)
-        ax.legend(fontsize=7)
+        _legend(ax, "variance 0 at every level")
     axes[0].set_ylabel("variance (mean over pixels)")
     return save_figure(fig, path)
 
@@ -112,7 +119,7 @@ def _plot_mse_time(result: SweepResult, path: Path) -> Path:
     ax.set_xlabel("wall time per estimate (s)")
     ax.set_ylabel("MSE")
     ax.set_title("MSE against time: lower-left is better")
-    ax.legend(fontsize=6)
+    _legend(ax, "MSE 0 everywhere", fontsize=6)
     return save_figure(fig, path)
 
 

@@ -87,3 +87,27 @@ def _scalar(method, sampler, spp, rng):
 def test_cli_converge_reports_bad_target(capsys, tmp_path):
     assert main(["converge", "no-such-target", "--out", str(tmp_path), "--quiet"]) == 2
     assert "no-such-target" in capsys.readouterr().err
+
+
+def test_cli_converge_on_an_integrand(tmp_path, capsys):
+    assert main(["converge", "checkerboard", "--out", str(tmp_path), "--quiet", "--workers", "1",
+                 "--samplers", "random,jittered", "--spp", "1,4,16,64", "--replicates", "8"]) == 0
+    printed = capsys.readouterr().out
+    assert f"html: {tmp_path / 'report.html'}" in printed
+    with open(tmp_path / "results.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    # two estimators x two samplers x four N; the 'importance' estimator has
+    # zero variance (its contribution is always 2) and zero bias
+    assert len(rows) == 16
+    assert all(float(r["variance"]) == 0 and float(r["bias"]) == 0 for r in rows if r["method"] == "importance")
+
+
+def test_demo_runs_its_settings(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("mcvar.integrators")
+    tiny = dict(report.DEMO_SETTINGS, methods=("path", "path:2"), samplers=("random",), spp=(1, 4, 16),
+                replicates=3, res=4)
+    monkeypatch.setattr(report, "DEMO_SETTINGS", tiny)
+    assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
+    page = (tmp_path / "report.html").read_text()
+    assert "Convergence report: cornell" in page and "4 x 4" in page
+    assert (tmp_path / "images.png").is_file()
