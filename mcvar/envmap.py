@@ -433,7 +433,7 @@ class EnvironmentMap:
         (exact for nearest lookup)."""
         return np.einsum("ijc,i->c", self.image, self.pixel_solid_angle)
 
-    def irradiance(self, normal, *, nodes: int = 8) -> np.ndarray:
+    def irradiance(self, normal, *, nodes: int = 16) -> np.ndarray:
         """Irradiance ``E(n) = integral of L(w) max(0, n . w) dw`` of the
         nearest-lookup map at a normal, RGB shape ``(3,)``.
 
@@ -461,11 +461,14 @@ class EnvironmentMap:
         crosses a row edge ``t_e`` (``cos(phi - phi_n) = -a cos t_e / (s sin
         t_e)``, ``s = |(n_x, n_z)|``) or the meridian through ``phi_n +- pi/2``;
         the phi-integral over each pixel is split at those points and each
-        smooth piece integrated by Gauss-Legendre with ``nodes`` points, so
-        the error falls exponentially with ``nodes`` (at ``nodes = 8`` it is at
-        rounding level for maps of 4 or more rows; the tests compare with
-        ``nodes = 16`` and with the closed form for ``n = +y``). Cost
-        ``O(H W nodes)``, computed a band of rows at a time.
+        smooth piece integrated by Gauss-Legendre with ``nodes`` points. The
+        error falls exponentially with ``nodes`` except on pieces where the
+        horizon is nearly tangent to a row edge (a square-root endpoint),
+        where it is algebraic: measured ~5e-10 relative at 8 nodes and at
+        rounding level (1e-15) at the default 16, checked in the tests
+        against a constant map (``E = pi L`` at every normal), the closed
+        form for ``n = +y``, ``nodes = 32`` and a brute-force midpoint rule.
+        Cost ``O(H W nodes)``, computed a band of rows at a time.
         """
         nodes = check_count(nodes, "nodes")
         n = normalize(as_array(normal, "normal", ndim=1, last=3))
@@ -565,39 +568,55 @@ def _row_centres(height):
     return (np.arange(height) + 0.5) * (math.pi / height)
 
 
-def _paint_disks(image, centres, radius, values):
+def _paint_disks(image, centres, radius, values, *, nodes: int = 24):
     """Add disks of constant radiance (angular ``radius``, about unit
     ``centres``) to a lat-long ``image`` in place, each pixel weighted by the
-    fraction of its solid angle the disk covers (``s^2`` equal-solid-angle
-    sub-pixels over the rows and columns a disk can touch, ``s`` chosen so
-    that about 64 sub-pixel rows span the disk). A disk's power is then
-    ``value * 2 pi (1 - cos radius)`` to a fraction of a percent, at any map
-    size."""
+    fraction of its solid angle the disk covers.
+
+    At polar angle ``t`` a disk about ``(t_c, p_c)`` covers the azimuths
+    ``|p - p_c| <= D(t)``, ``cos D = (cos r - cos t cos t_c) / (sin t sin t_c)``
+    (``D = pi`` where the disk holds the whole circle, e.g. around a pole), so
+    a pixel's covered solid angle is ``integral of sin t |[p_j, p_j+1] and
+    [p_c - D, p_c + D]| dt`` over the part of its row inside
+    ``[t_c - r, t_c + r]``: Gauss-Legendre in ``t`` with the exact overlap
+    length in ``p``. A disk's power is then ``value * 2 pi (1 - cos r)`` to
+    a small fraction of a percent at any map size, poles included."""
     h, w = image.shape[:2]
-    s = int(min(32, max(2, math.ceil(64 * (math.pi / h) / (2 * radius)))))
-    cos_edges = np.cos(np.arange(h + 1) * (math.pi / h))
+    x, wts = np.polynomial.legendre.leggauss(nodes)
+    dtheta = math.pi / h
+    dphi = 2 * math.pi / w
     cos_r = math.cos(radius)
     for c, val in zip(centres, values):
         theta_c = math.acos(max(-1.0, min(1.0, c[1])))
-        i0 = max(0, int((theta_c - radius) / math.pi * h) - 1)
-        i1 = min(h, int((theta_c + radius) / math.pi * h) + 2)
-        if theta_c - radius > 0 and theta_c + radius < math.pi:
-            half = math.asin(min(1.0, math.sin(radius) / math.sin(theta_c)))
-            phi_c = math.atan2(c[2], c[0]) % (2 * math.pi)
-            j0 = int((phi_c - half) / (2 * math.pi) * w) - 1
-            j1 = int((phi_c + half) / (2 * math.pi) * w) + 2
-            cols = np.arange(j0, j1) % w if j1 - j0 < w else np.arange(w)
-        else:  # the disk holds a pole: every column
-            cols = np.arange(w)
-        rows = np.arange(i0, i1)
-        t = (np.arange(s) + 0.5) / s
-        cos_t = (cos_edges[rows, None] - t * (cos_edges[rows, None] - cos_edges[rows + 1, None])).reshape(-1)
-        phi = ((cols[:, None] + t) * (2 * math.pi / w)).reshape(-1)
-        sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t ** 2))
-        d = (sin_t[:, None] * np.cos(phi)[None, :] * c[0] + cos_t[:, None] * c[1]
-             + sin_t[:, None] * np.sin(phi)[None, :] * c[2])
-        cover = (d >= cos_r).reshape(rows.size, s, cols.size, s).mean(axis=(1, 3))
-        np.add.at(image, (rows[:, None], cols[None, :]), cover[..., None] * val)
+        phi_c = math.atan2(c[2], c[0]) % (2 * math.pi)
+        lo_t, hi_t = max(0.0, theta_c - radius), min(math.pi, theta_c + radius)
+        cols = np.arange(w)
+        if theta_c - radius > 0 and theta_c + radius < math.pi:  # no pole inside: a phi window
+            reach = math.asin(min(1.0, math.sin(radius) / math.sin(theta_c)))
+            j0, j1 = int(math.floor((phi_c - reach) / dphi)), int(math.floor((phi_c + reach) / dphi)) + 1
+            if j1 - j0 < w:
+                cols = np.arange(j0, j1)  # unwrapped; image columns are cols % w
+        col_lo = cols * dphi
+        rows = np.arange(int(lo_t / dtheta), min(h, int(hi_t / dtheta) + 1))
+        a = np.maximum(rows * dtheta, lo_t)
+        b = np.minimum((rows + 1) * dtheta, hi_t)
+        keep = b > a
+        rows, a, b = rows[keep], a[keep], b[keep]
+        theta = 0.5 * (a + b)[:, None] + 0.5 * (b - a)[:, None] * x  # (R, nodes)
+        sin_t = np.sin(theta)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cos_d = (cos_r - np.cos(theta) * math.cos(theta_c)) / (sin_t * math.sin(theta_c))
+        cos_d = np.where(np.isfinite(cos_d), cos_d, -1.0)  # centre at a pole: full circles
+        half = np.arccos(np.clip(cos_d, -1.0, 1.0))  # (R, nodes)
+        overlap = np.zeros(theta.shape + (cols.size,))
+        for shift in (-2 * math.pi, 0.0, 2 * math.pi):
+            lo = np.maximum(col_lo, (phi_c - half + shift)[..., None])
+            hi = np.minimum(col_lo + dphi, (phi_c + half + shift)[..., None])
+            overlap += np.maximum(0.0, hi - lo)
+        covered = np.einsum("rq,q,rqw->rw", sin_t * (0.5 * (b - a))[:, None], wts, overlap)
+        omega = dphi * (np.cos(rows * dtheta) - np.cos((rows + 1) * dtheta))
+        np.add.at(image, (rows[:, None], (cols % w)[None, :]),
+                  np.minimum(1.0, covered / omega[:, None])[..., None] * np.asarray(val))
     return image
 
 

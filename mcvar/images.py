@@ -356,9 +356,9 @@ def _decode_scanlines(data: bytes, pos: int, n_lines: int, width: int, path) -> 
         else:
             # flat pixels, possibly with old-style repeats (1, 1, 1, n: repeat
             # the previous pixel n << shift times, shift growing by 8 per run)
-            chunk = buf[pos:pos + 4 * width].reshape(-1, 4)
-            repeats = (chunk[:, 0] == 1) & (chunk[:, 1] == 1) & (chunk[:, 2] == 1)
-            if chunk.shape[0] == width and not repeats.any():
+            raw = buf[pos:pos + 4 * width]
+            chunk = raw.reshape(-1, 4) if raw.size == 4 * width else None
+            if chunk is not None and not np.any((chunk[:, 0] == 1) & (chunk[:, 1] == 1) & (chunk[:, 2] == 1)):
                 out[row] = chunk  # the common case: a plain flat scanline
                 pos += 4 * width
                 continue
