@@ -59,6 +59,7 @@ from ._validation import (
     check_positive,
 )
 from .geometry import Frame, dot
+from .samplers import SAMPLERS, pixel_samples
 from .warps import (
     square_to_beckmann,
     square_to_beckmann_pdf,
@@ -1296,13 +1297,15 @@ def hemisphere_lookup(image, directions) -> np.ndarray:
 
 
 def exitant_radiance(bsdf: BSDF, incident, *, n: int = 64, size: int | None = None,
-                     rng=None) -> np.ndarray:
+                     sampler: str = "random", rng=None) -> np.ndarray:
     """Exitant radiance of a material lit by an incident radiance field on the hemisphere.
 
     ``L_o(wo) = int f(wo, wi) L_i(wi) cos theta_i dwi`` for every pixel
     direction ``wo`` of a hemisphere image, estimated with ``n`` BSDF samples
-    per pixel: ``mean(weight * L_i(wi))`` (delta lobes included; light from
-    below the horizon is 0). The lecture's exitant-radiance panels: diffuse
+    per pixel: ``mean(weight * L_i(wi))`` (delta lobes included). An image
+    holds the upper hemisphere only (light from below is 0); a callable is
+    asked about every sampled direction, so a transmissive material can see
+    what lies below it. The lecture's exitant-radiance panels: diffuse
     averages everything to one colour, a mirror flips the image about the
     normal (a 180-degree rotation in this projection), plastic flips and
     averages, rough copper blurs and tints.
@@ -1312,12 +1315,16 @@ def exitant_radiance(bsdf: BSDF, incident, *, n: int = 64, size: int | None = No
     bsdf : BSDF
     incident : array_like, shape (H, W, 3), or callable
         A hemisphere image (:func:`hemisphere_directions` layout) or a
-        function ``L(wi) -> (m, 3)`` of unit directions.
+        function ``L(wi) -> (m, 3)`` of unit directions (any hemisphere).
     n : int
         Samples per pixel.
     size : int, optional
         Output size when ``incident`` is a callable (square image); default
         the image's own shape.
+    sampler : str
+        A key of :data:`mcvar.samplers.SAMPLERS` for each pixel's ``n`` points
+        ('jittered' needs a square ``n``); stratified sets give smoother
+        panels than 'random' for the same ``n``.
     rng : None, int, SeedSequence or Generator
 
     Returns
@@ -1328,6 +1335,7 @@ def exitant_radiance(bsdf: BSDF, incident, *, n: int = 64, size: int | None = No
     if not isinstance(bsdf, BSDF):
         raise TypeError(f"bsdf must be an mcvar.bsdf.BSDF; got {type(bsdf).__name__}")
     n = check_count(n, "n")
+    check_choice(sampler, "sampler", tuple(SAMPLERS))
     rng = as_rng(rng)
     if callable(incident):
         if size is None:
@@ -1349,15 +1357,17 @@ def exitant_radiance(bsdf: BSDF, incident, *, n: int = 64, size: int | None = No
     out = np.zeros((len(wo), 3))
     rows = max(1, _CHUNK // n)
     for start in range(0, len(wo), rows):
+        k = len(wo[start:start + rows])
         block = np.repeat(wo[start:start + rows], n, axis=0)
-        s = bsdf.sample(block, rng.random((len(block), 2)))
-        live = np.any(s.weight > 0.0, axis=1) & (s.wi[:, 1] > 0.0)
+        s = bsdf.sample(block, pixel_samples(sampler, k, n, rng=rng).reshape(-1, 2))
+        live = np.any(s.weight > 0.0, axis=1)
         li = np.zeros((len(block), 3))
         if np.any(live):
-            li[live] = np.asarray(radiance(s.wi[live]), dtype=np.float64).reshape(-1, 3)
+            vals = as_array(radiance(s.wi[live]), "incident(wi)", nonnegative=True)
+            if vals.shape != (int(live.sum()), 3):
+                raise ValueError(f"incident(wi) must return shape (m, 3) for m directions; got {vals.shape}")
+            li[live] = vals
         out[start:start + rows] = (s.weight * li).reshape(-1, n, 3).mean(axis=1)
-    if not np.all(np.isfinite(out)):
-        raise ValueError("incident radiance gave non-finite values")
     result = np.zeros((height, width, 3))
     result[inside] = out
     return result
