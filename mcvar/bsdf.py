@@ -302,6 +302,13 @@ def fresnel_dielectric(cos_i, eta_i: float, eta_t: float, *,
     ----------
     .. [1] M. Born, E. Wolf, *Principles of Optics*, 7th ed., Cambridge
        University Press, 1999, section 1.5.
+
+    Examples
+    --------
+    >>> round(float(fresnel_dielectric(1.0, 1.0, 1.5)), 12)   # glass at normal incidence
+    0.04
+    >>> float(fresnel_dielectric(np.cos(np.radians(50.0)), 1.5, 1.0))   # beyond 41.81 deg
+    1.0
     """
     check_choice(polarization, "polarization", ("unpolarized", "s", "p"))
     c, e1, e2 = _oriented(cos_i, eta_i, eta_t)
@@ -476,11 +483,6 @@ class BSDF:
     def _params(self) -> dict:
         return {}
 
-    # helpers shared by the models ------------------------------------------------
-    @staticmethod
-    def _zeros(n: int):
-        return np.zeros((n, 3)), np.zeros(n)
-
 
 def _fmt(v):
     if isinstance(v, np.ndarray):
@@ -497,6 +499,15 @@ class Lambertian(BSDF):
     ----------
     albedo : float or array_like, shape (3,)
         Reflectance ``rho`` per channel, in [0, 1].
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(7)
+    >>> wo = np.tile([0.0, 1.0, 0.0], (4, 1))
+    >>> wi, weight, pdf = Lambertian((0.8, 0.5, 0.2)).sample(wo, rng.random((4, 2)))
+    >>> weight[0].tolist()                               # f cos / pdf = albedo exactly
+    [0.8, 0.5, 0.2]
 
     Notes
     -----
