@@ -244,9 +244,11 @@ def test_empty_input_gives_empty_output():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_chi_square_sampler_against_pdf(method):
-    # pixel columns align with the phi bins; the pdf's theta steps are
-    # integrated by chi2_test's adaptive quadrature (small map: converges)
-    env = EnvironmentMap(_random_map(np.random.default_rng(SEED)))
+    # A 3-row map has its row edges at cos(theta) = 1, 1/2, -1/2, -1, which are
+    # edges of chi2_test's 16 uniform cos(theta) bins, and its 16 columns are
+    # edges of the 32 phi bins: the pdf is constant on every cell, so the
+    # expected counts are exact. Row 0 (at the pole) and column 3 are black.
+    env = EnvironmentMap(_random_map(np.random.default_rng(SEED), 3, 16))
     result = chi2_test(lambda u: env.sample(u, method=method), lambda d: env.pdf(d, method=method),
                        "sphere", n=200_000, rng=SEED, bins=(16, 32), test_count=len(METHODS))
     assert result.passed, result.message
