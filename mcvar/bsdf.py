@@ -34,8 +34,9 @@ Conventions (docs/conventions.md, the lecture's 'Change of Syntax' slide)
   on the +y side only (``wo.y > 0`` and ``wi.y > 0``); anything else gives 0.
   Two-sided surfaces (the Cornell box walls) are handled by the caller, who
   flips the shading normal towards ``wo``. Transmissive models
-  (:class:`Refractive`, :class:`Glass`) must *not* be flipped: ``wo.y < 0``
-  tells them the ray is inside the medium of index ``eta``.
+  (:class:`Refractive`, :class:`Glass`; attribute ``transmissive``) must
+  *not* be flipped: ``wo.y < 0`` tells them the ray is inside the medium of
+  index ``eta``.
 
 The transmitted radiance is not scaled by ``(eta_i / eta_t)^2``: like the
 lecture's glass code we transport the quantity that is conserved along paths
@@ -439,6 +440,8 @@ class BSDF:
     is_delta: bool = False
     #: at least one lobe is a Dirac delta (``eval``/``pdf`` omit it)
     has_delta: bool = False
+    #: light may cross the surface (``wo.y < 0`` means inside): never flip the normal
+    transmissive: bool = False
 
     def eval(self, wo, wi) -> np.ndarray:
         """BSDF value ``f(wo, wi)``, shape (n, 3) RGB, delta lobes excluded."""
@@ -594,6 +597,7 @@ class Refractive(BSDF):
 
     is_delta = True
     has_delta = True
+    transmissive = True
 
     def __init__(self, eta=1.5, transmittance=1.0):
         self.eta = check_positive(eta, "eta")
@@ -647,6 +651,7 @@ class Glass(BSDF):
 
     is_delta = True
     has_delta = True
+    transmissive = True
 
     def __init__(self, eta=1.5, fresnel="exact", reflectance=1.0, transmittance=1.0):
         self.eta = check_positive(eta, "eta")

@@ -431,6 +431,8 @@ def test_mirror_and_smooth_conductor_are_deltas():
         assert np.all(delta) and np.all(pdf == 1)
     assert not B.Plastic().is_delta and B.Plastic().has_delta
     assert not B.Lambertian().has_delta
+    assert not B.Plastic(alpha=0.1).has_delta
+    assert [k for k, f in ALL.items() if f().transmissive] == ["refractive", "glass", "glass-schlick", "glass-const"]
 
 
 def test_roughness_to_zero_approaches_mirror():
