@@ -270,7 +270,8 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     fit_rows = [(f.method, f.sampler, _slope(f.variance), _slope(f.mse), _slope(f.mse_time),
                  _slope(f.bias2), _fmt(f.consistent)) for f in result.fits.values()]
     ranked = sorted(result.metrics, key=lambda m: (m.figure_of_merit, m.method, m.sampler, m.spp))
-    fom_rows = [(i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), _fmt(m.mse),
+    fom_rows = [(i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
+                 _fmt(m.mse),
                  _fmt(m.seconds), _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
                  f"{m.bias_z:.2f}", _fmt(m.bias_pvalue), _fmt(m.bias_detected))
                 for i, m in enumerate(ranked)]
@@ -312,8 +313,10 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
         "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a method "
         "would reach in one second, assuming MSE ~ 1/time. For comparison, a mature LLVM renderer "
         "reaches about 5e-6 on the Cornell box at 64 x 64 and 256 spp with a multi-jittered "
-        "sampler (about 1.4e-4 with independent sampling).</p>",
-        _table(("rank", "method", "sampler", xlabel, "MSE x time", "MSE", "seconds", "efficiency",
+        "sampler (about 1.4e-4 with independent sampling). MSE x time assumes the MSE falls like "
+        "1/time, true of unbiased, consistent methods only: a biased method's MSE stops at its "
+        "squared bias, so read its rank with its verdict.</p>",
+        _table(("rank", "method", "sampler", xlabel, "MSE x time", "verdict", "MSE", "seconds", "efficiency",
                 "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"), fom_rows),
         "<h2>Figures</h2>",
         _img(paths["variance"], "Variance against spp, log-log, fitted slopes in the legends "
