@@ -13,6 +13,7 @@ from typing import Iterable
 import numpy as np
 
 __all__ = [
+    "NotAnIntegerError",
     "as_rng",
     "check_count",
     "check_choice",
@@ -23,6 +24,17 @@ __all__ = [
     "as_directions",
     "as_unit_square",
 ]
+
+
+class NotAnIntegerError(ValueError, TypeError):
+    """A count that is not a whole number (``2.5``, ``4.0``, ``"4"``).
+
+    It is both a ``ValueError`` (the issue tracker's contract: "non-integer n
+    -> ValueError") and a ``TypeError`` (the style guide's rule for the wrong
+    kind of object), so either ``except`` clause catches it, the way
+    ``numpy.exceptions.AxisError`` is both a ``ValueError`` and an
+    ``IndexError``.
+    """
 
 
 def as_rng(rng=None) -> np.random.Generator:
@@ -49,11 +61,12 @@ def as_rng(rng=None) -> np.random.Generator:
 def check_count(n, name: str = "n", *, allow_zero: bool = False) -> int:
     """Return ``n`` as a Python int after checking it is a whole number >= 1.
 
-    ``bool`` and floats (even ``4.0``) are a ``TypeError``: a sample count is
-    never fractional. ``allow_zero=True`` admits 0 (empty outputs).
+    ``bool``, floats (even ``4.0``) and strings raise
+    :class:`NotAnIntegerError` (a ``ValueError`` and a ``TypeError``): a sample
+    count is never fractional. ``allow_zero=True`` admits 0 (empty outputs).
     """
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, numbers.Integral):
-        raise TypeError(f"{name} must be an integer; got {type(n).__name__} {n!r}")
+        raise NotAnIntegerError(f"{name} must be an integer; got {type(n).__name__} {n!r}")
     n = int(n)
     low = 0 if allow_zero else 1
     if not n >= low:

@@ -26,7 +26,10 @@ def test_check_count():
         check_count(0)
     with pytest.raises(ValueError, match="spp must be >= 1"):
         check_count(-3, "spp")
-    for bad in (4.0, True, "4", None):
+    for bad in (4.0, 2.5, True, "4", None):
+        # the contract (ValueError) and the style guide's (TypeError) both hold
+        with pytest.raises(ValueError, match="n must be an integer"):
+            check_count(bad)
         with pytest.raises(TypeError, match="n must be an integer"):
             check_count(bad)
 
