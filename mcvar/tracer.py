@@ -46,6 +46,15 @@ class Hit:
         return self.prim >= 0
 
 
+class _Block:
+    """One triangle group's stacked maps (rows: b1 of all, b2 of all, h of all)."""
+
+    __slots__ = ("idx", "k", "mat_o", "mat_d", "box")
+
+    def __init__(self, idx, k, mat_o, mat_d, box):
+        self.idx, self.k, self.mat_o, self.mat_d, self.box = idx, k, mat_o, mat_d, box
+
+
 class Tracer:
     """Precomputed intersection data for one scene (:class:`mcvar.scene.Scene`).
 
@@ -68,6 +77,23 @@ class Tracer:
     triangles, which for the 32 triangles of the Cornell box beats any
     hierarchy written in NumPy (a BVH's per-node Python overhead costs more
     than the arithmetic it saves).
+
+    Shadow rays (:meth:`occluded`) are *any-hit* queries: a ray stops being
+    tested once one group occludes it, and every group is tested only for
+    rays that cross its bounding box. Next-event estimation also passes each
+    shadow ray's *key* (the shading triangle, the side of its surface the ray
+    leaves from and the light it aims at, :meth:`shadow_keys`); a table built
+    once per scene then drops the triangles that cannot lie between any such
+    origin and light. Triangle ``j`` is dropped for a key when the shading
+    triangle and the light parallelogram, both moved off the surface by the
+    ray offset ``ray_epsilon``, lie on one side of ``j``'s plane, the light
+    strictly (by a margin that covers float32 rounding of the hit point): a
+    segment from a point of a closed half-space to a point of the open one
+    meets the plane at most at its start, where hits closer than
+    ``ray_epsilon`` are ignored anyway (half-spaces are convex). In the
+    Cornell box this removes the walls, the floor and the ceiling from the
+    shadow rays of every wall, floor and ceiling point: only the blocks and
+    the light remain.
     """
 
     def __init__(self, scene, *, dtype="float32", chunk: int = 2048, cull: bool = True):
@@ -79,6 +105,7 @@ class Tracer:
         self.scene = scene
         self.dtype = np.dtype(dtype)
         self.chunk = check_count(chunk, "chunk")
+        self.cull = bool(cull)
         self.epsilon = float(scene.ray_epsilon)
         tri = scene.triangles
         n_tri = tri.shape[0]
@@ -93,68 +120,131 @@ class Tracer:
             raise ValueError("scene has degenerate (zero-area) triangles")
         # Unit geometric normals of all primitives (spheres' are computed per hit).
         self.triangle_normal = nrm / area2[:, None] if n_tri else np.zeros((0, 3))
+        #: the same normals as structure-of-arrays (3, T), for the wavefront loop
+        self.triangle_normal_soa = np.ascontiguousarray(self.triangle_normal.T)
         # Per triangle the inverse of [e1 e2 n]; rows give b1, b2 and the height.
         basis = np.stack([e1, e2, nrm], axis=2)  # (T, 3, 3), columns e1, e2, n
         inv = np.linalg.inv(basis) if n_tri else np.zeros((0, 3, 3))
         offset = -np.einsum("tij,tj->ti", inv, v0) if n_tri else np.zeros((0, 3))
         # For origins the height row is negated, so that t = -h_o / h_d is one division.
-        inv_o = inv.copy()
-        inv_o[:, 2] *= -1.0
-        offset[:, 2] *= -1.0
+        self._inv_o = inv.copy()
+        self._inv_o[:, 2] *= -1.0
+        self._inv = inv
+        self._offset = offset.copy()
+        self._offset[:, 2] *= -1.0
         groups = scene.prim_group[:n_tri]
-        self._blocks = []
-        for g in np.unique(groups) if n_tri else []:
-            idx = np.flatnonzero(groups == g)
-            # rows: b1 of all triangles, b2 of all, h of all
-            mat_o = inv_o[idx].transpose(1, 0, 2).reshape(-1, 3)
-            mat_d = inv[idx].transpose(1, 0, 2).reshape(-1, 3)
-            off = offset[idx].T.reshape(-1)
-            verts = tri[idx].reshape(-1, 3)
-            box = (verts.min(axis=0), verts.max(axis=0)) if (g > 0 and cull) else None
-            self._blocks.append((idx, np.ascontiguousarray(mat_o, self.dtype),
-                                 np.ascontiguousarray(mat_d, self.dtype),
-                                 np.ascontiguousarray(off[:, None], self.dtype), box))
+        self._blocks = [self._make_block(np.flatnonzero(groups == g), g > 0 and self.cull)
+                        for g in (np.unique(groups) if n_tri else [])]
+        # any-hit order: boxed groups first (they occlude most), then the rest, each boxed
+        order = sorted(self._blocks, key=lambda b: b.box is None)
+        self._shadow_all = [self._make_block(b.idx, self.cull) for b in order]
+        self._shadow_cache = {}
         self._sph_c = scene.sphere_centers
         self._sph_r2 = scene.sphere_radii ** 2
+        self._build_shadow_table()
 
     # ------------------------------------------------------------------
-    def _tri_block(self, mat_o, mat_d, off, o, d, tmax, idx):
-        """Closest hit among one block's triangles for SoA rays o, d (3, m)."""
-        k = mat_o.shape[0] // 3
-        ot = mat_o @ o
-        ot += off
-        dt = mat_d @ d
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return self._tri_block_inner(ot, dt, k, tmax, idx)
+    # Construction
 
-    def _tri_block_inner(self, ot, dt, k, tmax, idx):
-        t = ot[2 * k:] / dt[2 * k:]
-        b1 = dt[:k]
-        b1 *= t
-        b1 += ot[:k]
-        b2 = dt[k:2 * k]
-        b2 *= t
-        b2 += ot[k:2 * k]
-        ok = b1 >= 0
-        ok &= b2 >= 0
-        b1 += b2
-        ok &= b1 <= 1
-        ok &= t > self.epsilon
-        ok &= t < tmax
-        t[~ok] = np.inf
-        if k == 1:
-            return t[0], np.where(ok[0], idx[0], -1)
-        j = np.argmin(t, axis=0)
-        best = np.take_along_axis(t, j[None], axis=0)[0]
-        return best, np.where(np.isfinite(best), idx[j], -1)
+    def _make_block(self, idx, with_box):
+        """Stacked maps of the triangles ``idx``: ``(3k, 4)`` homogeneous for
+        origins (offset in the last column) and ``(3k, 3)`` for directions."""
+        idx = np.asarray(idx, dtype=np.int64)
+        mat_o = self._inv_o[idx].transpose(1, 0, 2).reshape(-1, 3)
+        off = self._offset[idx].T.reshape(-1, 1)
+        mat_d = self._inv[idx].transpose(1, 0, 2).reshape(-1, 3)
+        box = None
+        if with_box:
+            verts = self.scene.triangles[idx].reshape(-1, 3)
+            # a relative pad keeps the float32 slab test conservative at the box's faces
+            pad = 1e-6 * max(1.0, float(np.abs(verts).max()))
+            box = ((verts.min(axis=0) - pad)[:, None].astype(self.dtype),
+                   (verts.max(axis=0) + pad)[:, None].astype(self.dtype))
+        return _Block(idx, idx.size, np.ascontiguousarray(np.concatenate([mat_o, off], axis=1), self.dtype),
+                      np.ascontiguousarray(mat_d, self.dtype), box)
+
+    def _build_shadow_table(self):
+        """``_cand[key, j]``: may triangle ``j`` occlude a shadow ray of this key?
+
+        Keys ``(light * n_prims + prim) * 3 + side + 1`` (side -1, 0, +1 of the
+        shading primitive's normal); the last row (all True) serves rays
+        without a key (environment samples, unknown origins). Spheres as
+        shading primitives get all-True rows.
+        """
+        scene = self.scene
+        n_tri, n_prim, n_light = self.n_triangles, self.n_triangles + self.n_spheres, scene.n_lights
+        self._n_prims = n_prim
+        cand = np.ones((n_light * n_prim * 3 + 1, n_tri), dtype=bool)
+        if n_tri and n_light:
+            tri = scene.triangles
+            nrm, v0 = self.triangle_normal, tri[:, 0]
+            scale = max(1.0, float(np.abs(tri).max()))
+            margin = max(0.25 * self.epsilon, 4e-6 * scale)
+            touch = 1e-9 * scale
+            corners = np.stack([scene.light_origin, scene.light_origin + scene.light_edge1,
+                                scene.light_origin + scene.light_edge1 + scene.light_edge2,
+                                scene.light_origin + scene.light_edge2], axis=1)      # (L, 4, 3)
+            for side in (-1, 0, 1):
+                shift = side * self.epsilon * nrm                                     # (T_i, 3)
+                hull_i = tri + shift[:, None, :]                                      # (T_i, 3, 3)
+                # signed distances to every plane j: (T_i, 3, T_j)
+                h_i = np.einsum("ivk,jk->ivj", hull_i, nrm) - np.einsum("jk,jk->j", v0, nrm)
+                lo_i, hi_i = h_i.min(axis=1), h_i.max(axis=1)                         # (T_i, T_j)
+                for light in range(n_light):
+                    hull_l = corners[light][None, :, :] + shift[:, None, :]            # (T_i, 4, 3)
+                    h_l = np.einsum("ivk,jk->ivj", hull_l, nrm) - np.einsum("jk,jk->j", v0, nrm)
+                    lo_l, hi_l = h_l.min(axis=1), h_l.max(axis=1)
+                    apart = ((lo_i >= -touch) & (lo_l >= margin)) | ((hi_i <= touch) & (hi_l <= -margin))
+                    rows = (light * n_prim + np.arange(n_tri)) * 3 + side + 1
+                    cand[rows] = ~apart
+        self._cand = cand
+
+    def shadow_keys(self, prim, side, light=None) -> np.ndarray:
+        """Keys of shadow rays for :meth:`occluded`.
+
+        Parameters
+        ----------
+        prim : ndarray of int, shape (n,)
+            Primitive the shadow ray starts on.
+        side : ndarray, shape (n,)
+            -1, 0 or +1: the ray origin is ``p + side * ray_epsilon * n_g``.
+        light : ndarray of int, shape (n,), optional
+            Light the ray aims at (default 0); -1 for none (e.g. the
+            environment): every triangle stays a candidate.
+        """
+        prim = np.asarray(prim, dtype=np.int64)
+        side = np.asarray(side).astype(np.int64)
+        light = np.zeros_like(prim) if light is None else np.asarray(light, dtype=np.int64)
+        keys = (light * self._n_prims + prim) * 3 + side + 1
+        return np.where(light >= 0, keys, self._cand.shape[0] - 1)
+
+    def _shadow_blocks(self, keys):
+        if keys is None or self._cand.shape[1] == 0:
+            return self._shadow_all
+        present = np.zeros(self._cand.shape[0], dtype=bool)
+        present[keys] = True
+        cand = self._cand[present].any(axis=0)
+        tag = cand.tobytes()
+        blocks = self._shadow_cache.get(tag)
+        if blocks is None:
+            blocks = []
+            for b in self._shadow_all:
+                sub = b.idx[cand[b.idx]]
+                if sub.size:
+                    blocks.append(self._make_block(sub, True))
+            self._shadow_cache[tag] = blocks
+        return blocks
+
+    # ------------------------------------------------------------------
+    # Kernels (structure-of-arrays, chunks of rays)
 
     @staticmethod
     def _box_hit(box, o, d, tmax):
         lo, hi = box
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / d
-            t0 = (lo[:, None] - o) * inv
-            t1 = (hi[:, None] - o) * inv
+            t0 = (lo - o) * inv
+            t1 = (hi - o) * inv
         tn = np.minimum(t0, t1)
         tf = np.maximum(t0, t1)
         # NaN (0 * inf on a slab boundary) must count as 'maybe hit': fmax/fmin ignore NaN.
@@ -162,43 +252,118 @@ class Tracer:
         far = np.fmin(np.fmin(tf[0], tf[1]), tf[2])
         return (near <= far) & (far > 0) & (near < tmax)
 
-    def _triangles(self, o, d, tmax):
-        """Closest triangle hits for SoA rays, processed in cache-sized chunks."""
+    def _block_t(self, blk, o4, d):
+        """Distance to every triangle of ``blk`` (inf where not hit beyond epsilon), (k, m)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return self._block_t_inner(blk, o4, d)
+
+    def _block_t_inner(self, blk, o4, d):
+        k = blk.k
+        ot = blk.mat_o @ o4
+        dt = blk.mat_d @ d
+        t = ot[2 * k:]
+        t /= dt[2 * k:]
+        b1 = dt[:k]
+        b1 *= t
+        b1 += ot[:k]
+        b2 = dt[k:2 * k]
+        b2 *= t
+        b2 += ot[k:2 * k]
+        ok = np.minimum(b1, b2) >= 0
+        b1 += b2
+        ok &= b1 <= 1
+        ok &= t > self.epsilon
+        return t, ok
+
+    def _closest_block(self, blk, o4, d, tmax):
+        t, ok = self._block_t(blk, o4, d)
+        if blk.k == 1:
+            best = np.where(ok[0], t[0], np.inf)
+            prim = np.full(best.shape, blk.idx[0])
+        else:
+            t = np.where(ok, t, np.inf)
+            j = np.argmin(t, axis=0)
+            best = np.take_along_axis(t, j[None], axis=0)[0]
+            prim = np.take(blk.idx, j)
+        best[~(best < tmax)] = np.inf
+        return best, prim
+
+    def _as_rays(self, o, d, tmax):
+        """Float ``(4, n)`` homogeneous origins, ``(3, n)`` directions and tmax in the kernel dtype."""
         n = o.shape[1]
+        o4 = np.empty((4, n), dtype=self.dtype)
+        o4[:3] = o
+        o4[3] = 1.0
+        d = np.asarray(d, dtype=self.dtype)
+        tm = np.full(n, np.inf, self.dtype) if tmax is None else np.asarray(tmax, dtype=self.dtype)
+        return o4, d, tm
+
+    def _closest_triangles(self, o, d, tmax):
+        n = o.shape[1]
+        o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.full(n, np.inf, dtype=self.dtype)
         p_out = np.full(n, -1, dtype=np.int64)
         for s in range(0, n, self.chunk):
             sl = slice(s, min(n, s + self.chunk))
-            oc, dc, tm = o[:, sl], d[:, sl], tmax[sl]
-            tb = np.full(oc.shape[1], np.inf, dtype=self.dtype)
-            pb = np.full(oc.shape[1], -1, dtype=np.int64)
-            for idx, mat_o, mat_d, off, box in self._blocks:
-                if box is None:
-                    t, p = self._tri_block(mat_o, mat_d, off, oc, dc, np.minimum(tm, tb), idx)
+            oc, dc = o4[:, sl], d[:, sl]
+            tb, pb = t_out[sl], p_out[sl]            # views: written in place
+            tb[:] = tm[sl]
+            for blk in self._blocks:
+                if blk.box is None:
+                    t, p = self._closest_block(blk, oc, dc, tb)
                     better = t < tb
-                    tb = np.where(better, t, tb)
-                    pb = np.where(better, p, pb)
+                    np.copyto(tb, t, where=better)
+                    np.copyto(pb, p, where=better)
                     continue
-                sel = np.flatnonzero(self._box_hit(box, oc, dc, np.minimum(tm, tb)))
+                sel = np.flatnonzero(self._box_hit(blk.box, oc[:3], dc, tb))
                 if sel.size == 0:
                     continue
-                t, p = self._tri_block(mat_o, mat_d, off, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1),
-                                       np.minimum(np.take(tm, sel), np.take(tb, sel)), idx)
-                better = t < np.take(tb, sel)
+                tsel = np.take(tb, sel)
+                t, p = self._closest_block(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1), tsel)
+                better = t < tsel
                 tb[sel[better]] = t[better]
                 pb[sel[better]] = p[better]
-            t_out[sl] = tb
-            p_out[sl] = pb
-        return t_out, p_out
+            tb[pb < 0] = np.inf
+        return t_out.astype(np.float64), p_out
+
+    def _any_triangles(self, o, d, tmax, keys):
+        n = o.shape[1]
+        occ = np.zeros(n, dtype=bool)
+        blocks = self._shadow_blocks(keys)
+        if not blocks:
+            return occ
+        o4, d, tm = self._as_rays(o, d, tmax)
+        for s in range(0, n, self.chunk):
+            sl = slice(s, min(n, s + self.chunk))
+            oc, dc, tc, occ_c = o4[:, sl], d[:, sl], tm[sl], occ[sl]
+            live = None
+            for blk in blocks:
+                if live is None:
+                    sel = np.flatnonzero(self._box_hit(blk.box, oc[:3], dc, tc))
+                else:
+                    lh = self._box_hit(blk.box, np.take(oc[:3], live, axis=1), np.take(dc, live, axis=1),
+                                       np.take(tc, live))
+                    sel = live[lh]
+                if sel.size == 0:
+                    continue
+                t, ok = self._block_t(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1))
+                ok &= t < np.take(tc, sel)
+                blocked = ok.any(axis=0)
+                if blocked.any():
+                    occ_c[sel[blocked]] = True
+                    live = np.flatnonzero(~occ_c)
+                    if live.size == 0:
+                        break
+        return occ
 
     def _spheres(self, o, d, tmax):
-        """Closest sphere hits (float64), rays (n, 3)."""
-        n = o.shape[0]
+        """Closest sphere hits (float64), SoA rays (3, n)."""
+        n = o.shape[1]
         if self.n_spheres == 0:
             return np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
-        oc = o[None, :, :] - self._sph_c[:, None, :]           # (S, n, 3)
-        b = np.einsum("snk,nk->sn", oc, d)
-        c = np.einsum("snk,snk->sn", oc, oc) - self._sph_r2[:, None]
+        oc = o[None, :, :] - self._sph_c[:, :, None]          # (S, 3, n)
+        b = np.einsum("skn,kn->sn", oc, d)
+        c = np.einsum("skn,skn->sn", oc, oc) - self._sph_r2[:, None]
         disc = b * b - c
         root = np.sqrt(np.maximum(disc, 0.0))
         t0 = -b - root
@@ -208,8 +373,46 @@ class Tracer:
         ok = (disc >= 0) & (t > eps) & (t < tmax[None, :])
         t = np.where(ok, t, np.inf)
         j = np.argmin(t, axis=0)
-        best = t[j, np.arange(n)]
+        best = np.take_along_axis(t, j[None], axis=0)[0]
         return best, np.where(np.isfinite(best), self.n_triangles + j, -1)
+
+    # ------------------------------------------------------------------
+    # Internal entry points for the wavefront loop: SoA (3, n) float64, no checks
+
+    def closest_soa(self, o, d, tmax=None):
+        """Closest hits of SoA rays ``o, d`` of shape (3, n): ``(t, prim)``.
+
+        Internal fast path of :meth:`intersect` for already-checked arrays
+        (the integrators' wavefront loop); ``t`` is float64, inf on a miss.
+        """
+        n = o.shape[1]
+        if self.n_triangles:
+            t, prim = self._closest_triangles(o, d, tmax)
+        else:
+            t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
+        if self.n_spheres:
+            tm = t if tmax is None else np.minimum(np.asarray(tmax, dtype=np.float64), t)
+            ts, ps = self._spheres(np.asarray(o, dtype=np.float64), np.asarray(d, dtype=np.float64), tm)
+            closer = ts < t
+            t = np.where(closer, ts, t)
+            prim = np.where(closer, ps, prim)
+        return t, prim
+
+    def occluded_soa(self, o, d, tmax, keys=None) -> np.ndarray:
+        """Any-hit shadow test of SoA rays (3, n); ``keys`` from :meth:`shadow_keys`."""
+        n = o.shape[1]
+        tm = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,))
+        occ = self._any_triangles(o, d, tm, keys) if self.n_triangles else np.zeros(n, dtype=bool)
+        if self.n_spheres:
+            rest = np.flatnonzero(~occ)
+            if rest.size:
+                ts, _ = self._spheres(np.asarray(o[:, rest], dtype=np.float64),
+                                      np.asarray(d[:, rest], dtype=np.float64), tm[rest])
+                occ[rest] = np.isfinite(ts)
+        return occ
+
+    # ------------------------------------------------------------------
+    # Public API: rays (n, 3)
 
     def _check(self, origins, directions, tmax):
         o = as_array(origins, "origins", ndim=2, last=3)
@@ -241,26 +444,20 @@ class Tracer:
             ``t`` (float64, inf on a miss) and ``prim`` (-1 on a miss).
         """
         o, d, tm = self._check(origins, directions, tmax)
-        t_tri, p_tri = self._triangles(np.ascontiguousarray(o.T, self.dtype),
-                                       np.ascontiguousarray(d.T, self.dtype),
-                                       tm.astype(self.dtype))
-        t = t_tri.astype(np.float64)
-        prim = p_tri
-        if self.n_spheres:
-            ts, ps = self._spheres(o, d, np.minimum(tm, t))
-            closer = ts < t
-            t = np.where(closer, ts, t)
-            prim = np.where(closer, ps, prim)
+        t, prim = self.closest_soa(o.T, d.T, tm)
         return Hit(t=t, prim=prim)
 
-    def occluded(self, origins, directions, tmax) -> np.ndarray:
+    def occluded(self, origins, directions, tmax, keys=None) -> np.ndarray:
         """True where anything lies between ``scene.ray_epsilon`` and ``tmax`` along the ray.
 
         Shadow rays: pass ``tmax = distance - scene.ray_epsilon`` so that the
-        light's own surface does not occlude it.
+        light's own surface does not occlude it. An any-hit query: the same
+        answer as ``intersect(...).prim >= 0``, found with less work.
+        ``keys`` (:meth:`shadow_keys`) lets it skip triangles that cannot lie
+        between the rays' origins and their light.
         """
-        hit = self.intersect(origins, directions, tmax)
-        return hit.prim >= 0
+        o, d, tm = self._check(origins, directions, tmax)
+        return self.occluded_soa(o.T, d.T, tm, keys)
 
     def normals(self, prim, points) -> np.ndarray:
         """Unit geometric normals ``(n, 3)`` of primitives ``prim`` at ``points``.
