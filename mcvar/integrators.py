@@ -238,6 +238,15 @@ class _Shading:
             pdf[sel] = self.select_pdf * pdf_env
         return wi, dist, le, pdf
 
+    def chosen_light(self, u):
+        """Light index that :meth:`sample_emitters` picks for each ``u`` (-1: the environment)."""
+        n_em = self.n_emitters
+        if n_em > 1:
+            k = np.minimum((np.asarray(u)[:, 0] * n_em).astype(np.int64), n_em - 1)
+        else:
+            k = np.zeros(np.shape(u)[0], dtype=np.int64)
+        return np.where(k < self.scene.n_lights, k, -1)
+
     def environment(self, d):
         return self.env.radiance(d)
 
@@ -252,11 +261,87 @@ def _flips(material) -> bool:
     return not isinstance(material, (Glass, Refractive))
 
 
-def _by_material(mat, n_materials):
-    """Index arrays of the rows using each material (a loop over materials, not rays)."""
-    order = np.argsort(mat, kind="stable")
-    counts = np.bincount(mat, minlength=n_materials)
-    return np.split(order, np.cumsum(counts)[:-1])
+def _dot(a, b):
+    """Row-wise dot products of SoA vectors (3, n) -> (n,)."""
+    return np.einsum("ij,ij->j", a, b)
+
+
+class _Wavefront:
+    """Per-scene tables of the SoA wavefront loop (built once per :func:`trace_paths`).
+
+    Rays, throughputs and shading frames are structure-of-arrays ``(3, n)``
+    float64 (the layout measured to pay for per-component passes); the
+    intersection kernel converts to its own precision. Materials are
+    dispatched on contiguous slices: the rays are sorted by material once per
+    bounce (a stable radix sort of small integer codes), so every material is
+    called once per bounce on a slice, with no gather or scatter.
+    """
+
+    def __init__(self, scene: Scene, tracer: Tracer, sh: _Shading):
+        self.n_mat = len(scene.materials)
+        n_prim = scene.n_triangles + scene.n_spheres
+        code = np.empty(n_prim + 1, dtype=np.int16 if self.n_mat < 32000 else np.int64)
+        code[:n_prim] = scene.prim_material
+        code[n_prim] = self.n_mat                   # prim -1 (a miss) takes the last entry
+        self.mat_code = code
+        self.emits = np.append(np.any(scene.prim_emission > 0, axis=1), False)
+        self.flips = sh.two_sided
+        self.delta = sh.delta
+        self.n_tri = scene.n_triangles
+        self.spheres = scene.n_spheres > 0
+        if not self.spheres and self.n_tri:
+            # Triangles have constant normals: their shading frames, for both
+            # orientations, are a table indexed by 2 * prim + flipped.
+            nrm = tracer.triangle_normal
+            both = np.stack([nrm, -nrm], axis=1).reshape(-1, 3)
+            fr = Frame(both)
+            self.frame_s = np.ascontiguousarray(fr.s.T)
+            self.frame_n = np.ascontiguousarray(fr.n.T)
+            self.frame_t = np.ascontiguousarray(fr.t.T)
+        # One parallelogram light and nothing else to sample: fused NEE.
+        self.single_quad = scene.n_lights == 1 and scene.environment is None
+        if self.single_quad:
+            self.light_affine = np.stack([scene.light_origin[0], scene.light_edge1[0],
+                                          scene.light_edge2[0]], axis=1)      # columns o, e1, e2
+            self.light_n = scene.light_normal[0]
+            self.light_pa = sh.select_pdf / float(scene.light_area[0])
+            self.light_le = scene.light_radiance[0][:, None]
+
+    def geometric_normals(self, tracer, prim, p):
+        if not self.spheres:
+            return np.take(tracer.triangle_normal_soa, prim, axis=1)
+        return np.ascontiguousarray(tracer.normals(prim, p.T).T)
+
+    def frames(self, prim, ng, flip):
+        """Shading frames ``(s, n, t)``, SoA (3, m) each, normal flipped where ``flip``."""
+        if not self.spheres:
+            key = 2 * prim + flip
+            return (np.take(self.frame_s, key, axis=1), np.take(self.frame_n, key, axis=1),
+                    np.take(self.frame_t, key, axis=1))
+        fr = Frame(np.where(flip, -ng, ng).T)
+        return fr.s.T, fr.n.T, fr.t.T
+
+    def sample_light(self, sh, p, u):
+        """NEE sample for every shading point: ``(w, dist, le, pdf, light)``, SoA."""
+        m = p.shape[1]
+        if self.single_quad:
+            uh = np.empty((3, m))
+            uh[0] = 1.0
+            uh[1:] = u
+            v = self.light_affine @ uh          # uniform point on the parallelogram
+            v -= p
+            d2 = _dot(v, v)
+            r = np.sqrt(d2)
+            w = v / np.maximum(r, 1e-300)
+            cos_l = -(self.light_n @ w)
+            # area density to solid angle: p_A r^2 / cos_l (0 behind or edge-on)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pdf = np.where(cos_l > 0.0, self.light_pa * d2 / cos_l, 0.0)
+            le = np.broadcast_to(self.light_le, (3, m))
+            return w, r, le, pdf, np.zeros(m, dtype=np.int64)
+        wi, dist, le, pdf = sh.sample_emitters(p.T, u.T)
+        light = sh.chosen_light(u.T)
+        return wi.T, dist, le.T, pdf, light
 
 
 def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path",
@@ -327,91 +412,116 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     n = o.shape[0]
+    check_choice(integrator, "integrator", tuple(_MODES))
+    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
+    rng = as_rng(rng)
+    nee, bsdf_hits, mis = _MODES[integrator]
+    if integrator.startswith("direct"):
+        max_depth = 2
+    weight_fn = HEURISTICS[heuristic]
+    tracer = tracer if tracer is not None else Tracer(scene)
+    sh = _Shading(scene, tracer)
+    wf = _Wavefront(scene, tracer, sh)
+    nee = nee and sh.n_emitters > 0
+    o = np.array(np.asarray(origins, dtype=np.float64).T, order="C")
+    d = np.array(np.asarray(directions, dtype=np.float64).T, order="C")
+    n_all = o.shape[1]
     u = np.asarray(u, dtype=np.float64)
-    radiance = np.zeros((n, 3))
-    idx = np.arange(n)
-    beta = np.ones((n, 3))
-    prev_pdf = np.full(n, np.inf)          # inf: camera ray or delta bounce (MIS weight 1)
+    radiance = np.zeros((3, n_all))
+    idx = np.arange(n_all)
+    beta = np.ones((3, n_all))
+    prev_pdf = np.full(n_all, np.inf)          # inf: camera ray or delta bounce (MIS weight 1)
     rays = 0
     limit = RR_MAX_DEPTH if max_depth is None else max_depth
+    materials = sh.materials
+    eps = sh.eps
     k = 0
     while idx.size and k < limit:
         k += 1
-        hit = tracer.intersect(o, d)
-        rays += idx.size
-        t, prim = hit.t, hit.prim
-        found = prim >= 0
+        n = idx.size
+        t, prim = tracer.closest_soa(o, d)
+        rays += n
+        mat = np.take(wf.mat_code, prim)
         # -- rays that left the scene: environment emission
-        if sh.env is not None and not np.all(found):
-            miss = ~found
-            le = sh.environment(d[miss])
-            w = _emission_weight(k, prev_pdf[miss], lambda: sh.environment_pdf(d[miss]),
-                                 nee, bsdf_hits, mis, weight_fn)
-            radiance[idx[miss]] += beta[miss] * le * w[:, None]
-        keep = np.flatnonzero(found)
-        idx, o, d, t, prim = idx[keep], np.take(o, keep, 0), np.take(d, keep, 0), t[keep], prim[keep]
-        beta, prev_pdf = np.take(beta, keep, 0), prev_pdf[keep]
-        if idx.size == 0:
+        if sh.env is not None:
+            miss = np.flatnonzero(prim < 0)
+            if miss.size:
+                dm = d[:, miss].T
+                le = sh.environment(dm)
+                w = _emission_weight(k, prev_pdf[miss], lambda: sh.environment_pdf(dm),
+                                     nee, bsdf_hits, mis, weight_fn)
+                radiance[:, idx[miss]] += beta[:, miss] * le.T * w
+        # -- sort the hits by material (misses last) and drop the misses
+        order = np.argsort(mat, kind="stable")
+        counts = np.bincount(mat, minlength=wf.n_mat + 1)
+        m = n - int(counts[-1])
+        if m == 0:
             break
-        p = o + t[:, None] * d
+        order = order[:m]
+        o, d, beta = np.take(o, order, 1), np.take(d, order, 1), np.take(beta, order, 1)
+        idx, prev_pdf = np.take(idx, order), np.take(prev_pdf, order)
+        t, prim, mat = np.take(t, order), np.take(prim, order), np.take(mat, order)
+        ends = np.cumsum(counts[:-1])
+        groups = [(mi, int(ends[mi] - counts[mi]), int(ends[mi])) for mi in range(wf.n_mat) if counts[mi]]
+        p = d * t
+        p += o
         # -- emission at the hit
-        le = sh.emission(prim, p, d)
-        lit = np.flatnonzero(np.any(le > 0, axis=1))
+        lit = np.flatnonzero(np.take(wf.emits, prim))
         if lit.size:
-            w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], o[lit], p[lit]),
+            pl, dl, ol = p[:, lit].T, d[:, lit].T, o[:, lit].T
+            le = sh.emission(prim[lit], pl, dl)
+            w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], ol, pl),
                                  nee, bsdf_hits, mis, weight_fn)
-            radiance[idx[lit]] += beta[lit] * le[lit] * w[:, None]
+            radiance[:, idx[lit]] += beta[:, lit] * le.T * w
         if k >= limit:
             break
         # -- shading frame: flip two-sided materials' normal towards wo
-        mat = np.take(scene.prim_material, prim)
-        n_g = tracer.normals(prim, p)
+        ng = wf.geometric_normals(tracer, prim, p)
         wo = -d
-        cos_o = np.einsum("ij,ij->i", n_g, wo)
-        flip = np.take(sh.two_sided, mat) & (cos_o < 0.0)
-        n_s = np.where(flip[:, None], -n_g, n_g)
-        frame = Frame(n_s)
-        wo_l = frame.to_local(wo)
-        m = idx.size
+        flip = np.take(wf.flips, mat) & (_dot(ng, wo) < 0.0)
+        fs, fn, ft = wf.frames(prim, ng, flip)
+        wo_l = np.stack([_dot(wo, fs), _dot(wo, fn), _dot(wo, ft)])
         if k == 1 and u.shape[1] >= 4:
-            u_light, u_bsdf = u[idx, 0:2], u[idx, 2:4]
+            uu = np.ascontiguousarray(np.take(u, idx, axis=0)[:, :4].T)
         else:
-            r = rng.random((m, 4))
-            u_light, u_bsdf = r[:, 0:2], r[:, 2:4]
-        groups = _by_material(mat, len(sh.materials))
+            uu = rng.random((4, m))
         # -- next-event estimation (adds paths of k + 1 segments)
         if nee and k + 1 <= limit:
-            cand = np.flatnonzero(~np.take(sh.delta, mat))
-            if cand.size:
-                rays += _next_event(sh, tracer, cand, p, n_g, frame, wo_l, mat, beta, u_light,
-                                    radiance, idx, mis, weight_fn)
+            rays += _next_event(sh, wf, tracer, groups, p, ng, (fs, fn, ft), wo_l, prim, beta,
+                                uu[0:2], radiance, idx, mis, weight_fn)
         # -- continue the path by BSDF sampling?
         if k + 1 > limit or (k + 1 == limit and not bsdf_hits):
             break
-        wi_l = np.zeros((m, 3))
-        weight = np.zeros((m, 3))
-        pdf = np.zeros(m)
-        for mi, rows in enumerate(groups):
-            if rows.size == 0:
-                continue
-            s = sh.materials[mi].sample(wo_l[rows], u_bsdf[rows])
-            wi_l[rows], weight[rows], pdf[rows] = s.wi, s.weight, s.pdf
-        delta = np.take(sh.delta, mat)
-        pdf = np.where(delta, np.inf, pdf)
-        beta = beta * weight
-        wi = frame.to_world(wi_l)
-        alive = np.any(beta > 0.0, axis=1)
+        wi_l = np.empty((3, m))
+        weight = np.empty((3, m))
+        pdf = np.empty(m)
+        for mi, a, b in groups:
+            s = materials[mi].sample(wo_l[:, a:b].T, uu[2:4, a:b].T)
+            wi_l[:, a:b] = s.wi.T
+            weight[:, a:b] = s.weight.T
+            pdf[a:b] = np.inf if wf.delta[mi] else s.pdf
+        beta *= weight
+        wi = fs * wi_l[0]
+        wi += fn * wi_l[1]
+        wi += ft * wi_l[2]
+        bmax = beta.max(axis=0)
+        alive = bmax > 0.0
         if max_depth is None and k >= RR_START_DEPTH:
-            q = np.minimum(beta.max(axis=1), 0.95)
+            q = np.minimum(bmax, 0.95)
             survive = rng.random(m) < q
-            beta = beta / np.where(survive, q, 1.0)[:, None]
+            beta /= np.where(survive, q, 1.0)
             alive &= survive
-        keep = np.flatnonzero(alive)
-        side = np.sign(np.einsum("ij,ij->i", wi, n_g))
-        o = p + (sh.eps * side)[:, None] * n_g
-        idx, o, d = idx[keep], np.take(o, keep, 0), np.take(wi, keep, 0)
-        beta, prev_pdf = np.take(beta, keep, 0), pdf[keep]
-    return radiance, rays
+        side = np.sign(_dot(wi, ng))
+        side *= eps
+        o = ng * side
+        o += p
+        d = wi
+        prev_pdf = pdf
+        if not alive.all():
+            keep = np.flatnonzero(alive)
+            idx, o, d = np.take(idx, keep), np.take(o, keep, 1), np.take(d, keep, 1)
+            beta, prev_pdf = np.take(beta, keep, 1), np.take(prev_pdf, keep)
+    return np.ascontiguousarray(radiance.T), rays
 
 
 def _emission_weight(k, prev_pdf, light_pdf, nee, bsdf_hits, mis, weight_fn):
@@ -430,44 +540,47 @@ def _emission_weight(k, prev_pdf, light_pdf, nee, bsdf_hits, mis, weight_fn):
     return np.where(delta, 1.0, w)
 
 
-def _next_event(sh, tracer, cand, p, n_g, frame, wo_l, mat, beta, u_light, radiance, idx, mis, weight_fn):
-    """Connect the shading points ``cand`` to an emitter; add the unoccluded contributions."""
-    wi, dist, le, pdf_l = sh.sample_emitters(p[cand], u_light[cand])
-    wi_l = _to_local_rows(frame, cand, wi)
-    mat_c = mat[cand]
-    f = np.zeros((cand.size, 3))
-    pdf_b = np.zeros(cand.size)
-    for mi, rows in enumerate(_by_material(mat_c, len(sh.materials))):
-        if rows.size == 0 or sh.delta[mi]:
+def _next_event(sh, wf, tracer, groups, p, ng, frame, wo_l, prim, beta, u_light, radiance, idx, mis,
+                weight_fn):
+    """Connect every shading point to an emitter; add the unoccluded contributions.
+
+    SoA arrays (3, m), rows sorted by material (``groups``: material,
+    start, end). Returns the number of shadow rays traced.
+    """
+    m = p.shape[1]
+    w, dist, le, pdf_l, light = wf.sample_light(sh, p, u_light)
+    fs, fn, ft = frame
+    wi_l = np.stack([_dot(w, fs), _dot(w, fn), _dot(w, ft)])
+    f = np.zeros((3, m))
+    pdf_b = np.zeros(m)
+    for mi, a, b in groups:
+        if wf.delta[mi]:
             continue
-        f[rows] = sh.materials[mi].eval(wo_l[cand[rows]], wi_l[rows])
+        wo_g, wi_g = wo_l[:, a:b].T, wi_l[:, a:b].T
+        f[:, a:b] = sh.materials[mi].eval(wo_g, wi_g).T
         if mis:
-            pdf_b[rows] = sh.materials[mi].pdf(wo_l[cand[rows]], wi_l[rows])
-    cos_i = np.abs(wi_l[:, 1])
+            pdf_b[a:b] = sh.materials[mi].pdf(wo_g, wi_g)
     with np.errstate(divide="ignore", invalid="ignore"):
-        contrib = np.take(beta, cand, 0) * f * le * (cos_i / np.where(pdf_l > 0, pdf_l, np.inf))[:, None]
+        scale = np.abs(wi_l[1]) / np.where(pdf_l > 0, pdf_l, np.inf)
     if mis:
-        contrib *= weight_fn(pdf_l, pdf_b)[:, None]
-    go = np.flatnonzero(np.any(contrib > 0.0, axis=1))
+        scale *= weight_fn(pdf_l, pdf_b)
+    contrib = beta * f
+    contrib *= le
+    contrib *= scale
+    go = np.flatnonzero(contrib.max(axis=0) > 0.0)
     if go.size == 0:
         return 0
-    pc = p[cand[go]]
-    ng = n_g[cand[go]]
-    w = wi[go]
-    side = np.sign(np.einsum("ij,ij->i", w, ng))
-    origin = pc + (sh.eps * side)[:, None] * ng
-    tmax = dist[go] - 2.0 * sh.eps
-    blocked = tracer.occluded(origin, w, tmax)
+    ngo = np.take(ng, go, 1)
+    wgo = np.take(w, go, 1)
+    side = np.sign(_dot(wgo, ngo))
+    origin = ngo * (sh.eps * side)
+    origin += np.take(p, go, 1)
+    tmax = np.take(dist, go) - 2.0 * sh.eps
+    keys = tracer.shadow_keys(np.take(prim, go), side, np.take(light, go))
+    blocked = tracer.occluded_soa(origin, wgo, tmax, keys)
     vis = go[~blocked]
-    radiance[idx[cand[vis]]] += contrib[vis]
+    radiance[:, idx[vis]] += contrib[:, vis]
     return int(go.size)
-
-
-def _to_local_rows(frame: Frame, rows, v) -> np.ndarray:
-    """``v`` (world) in the local frames of ``rows`` of ``frame``."""
-    s, n, t = frame.s[rows], frame.n[rows], frame.t[rows]
-    return np.stack([np.einsum("ij,ij->i", v, s), np.einsum("ij,ij->i", v, n),
-                     np.einsum("ij,ij->i", v, t)], axis=1)
 
 
 # ---------------------------------------------------------------------------
