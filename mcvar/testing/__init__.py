@@ -3,7 +3,11 @@
 A kit that catches the bugs renderers actually ship:
 
 * :func:`chi2_test`: does a sampler draw from the density its pdf claims?
-  (Pearson's chi-square goodness of fit, after Mitsuba's ``chi2.py``);
+  (Pearson's chi-square goodness of fit, after Mitsuba's ``chi2.py``; a
+  sampler may report failed samples, and the pdf then integrates to the
+  probability of a valid one);
+* :func:`bsdf_chi2_test`: the same for a BSDF's ``sample`` and ``pdf`` at a
+  fixed ``wo`` (failed samples and delta lobes excluded, their mass checked);
 * :func:`check_pdf_normalized`: does the pdf integrate to 1 (adaptive
   cubature, with its error estimate)?
 * :func:`check_weight_consistency`: is a BSDF's sample weight
@@ -22,15 +26,28 @@ many samples each check needs to reject one.
 """
 from __future__ import annotations
 
-import functools
 import warnings
-from dataclasses import dataclass, field
-from typing import Callable, Literal, Protocol, runtime_checkable
+from dataclasses import dataclass
+from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 from scipy import integrate, stats
 
 from .._validation import as_array, as_directions, as_rng, check_count, check_choice, check_positive
+from ._chi2 import (
+    _DOMAIN_INFO,
+    DOMAINS,
+    Chi2Result,
+    Domain,
+    _bounds,
+    _eval_pdf,
+    _from_params,
+    _sample_points,
+    _to_params,
+    bsdf_chi2_test,
+    chi2_test,
+    sidak_significance,
+)
 
 __all__ = [
     "DOMAINS",
@@ -40,6 +57,7 @@ __all__ = [
     "BSDFLike",
     "sidak_significance",
     "chi2_test",
+    "bsdf_chi2_test",
     "check_pdf_normalized",
     "check_weight_consistency",
     "check_inverse",
@@ -47,38 +65,6 @@ __all__ = [
     "check_unbiased",
     "measure_power",
 ]
-
-Domain = Literal["square", "disk", "hemisphere", "sphere"]
-DOMAINS = ("square", "disk", "hemisphere", "sphere")
-
-_TWO_PI = 2.0 * np.pi
-# Parameter rectangle, coordinate names, Jacobian of the parameterisation and
-# dimension of the points of each domain. Directions are binned in
-# (cos theta, phi): d(omega) = d(cos theta) d(phi), so equal parameter areas
-# are equal solid angles; the disk in (r^2, phi): dA = (1/2) d(r^2) d(phi).
-_DOMAIN_INFO = {
-    "square": (((0.0, 1.0), (0.0, 1.0)), ("x", "y"), 1.0, 2),
-    "disk": (((0.0, 1.0), (0.0, _TWO_PI)), ("r^2", "phi"), 0.5, 2),
-    "hemisphere": (((0.0, 1.0), (0.0, _TWO_PI)), ("cos_theta", "phi"), 1.0, 3),
-    "sphere": (((-1.0, 1.0), (0.0, _TWO_PI)), ("cos_theta", "phi"), 1.0, 3),
-}
-
-
-def sidak_significance(significance: float, test_count: int) -> float:
-    """Per-test significance keeping the family-wise false-rejection rate at
-    ``significance`` over ``test_count`` independent tests (Sidak):
-    ``1 - (1 - significance)^(1 / test_count)``.
-
-    Examples
-    --------
-    >>> round(sidak_significance(1e-3, 10), 8)
-    0.00010005
-    """
-    a = check_positive(significance, "significance")
-    if not a < 1.0:
-        raise ValueError(f"significance must lie in (0, 1); got {a}")
-    m = check_count(test_count, "test_count")
-    return float(-np.expm1(np.log1p(-a) / m))
 
 
 # --------------------------------------------------------------------------
@@ -112,55 +98,6 @@ class CheckResult:
     n: int = 0
 
 
-@dataclass(frozen=True, eq=False)
-class Chi2Result:
-    """Outcome of :func:`chi2_test`.
-
-    Attributes
-    ----------
-    statistic, dof, pvalue : float, int, float
-        Pearson's statistic over the pooled cells, its degrees of freedom
-        (cells - 1) and the upper-tail probability. ``statistic = inf`` and
-        ``pvalue = 0`` when a sanity check failed (see ``message``).
-    significance : float
-        The per-test significance used (Sidak-corrected for ``test_count``).
-    passed : bool
-        ``pvalue > significance`` and every sanity check passed.
-    message : str
-    observed, expected : ndarray, shape (bins[0], bins[1])
-        Histograms over the parameter rectangle (before pooling), so that
-        observed and expected can be plotted side by side.
-    edges : tuple of two ndarray
-        Bin edges along each parameter axis.
-    coordinates : tuple of str
-        Names of the parameter axes, e.g. ``('cos_theta', 'phi')``.
-    domain : str
-    n : int
-    pdf_integral : float
-        Integral of the pdf over ``bounds`` (numerical quadrature).
-    integration_error : float
-        Chi-square inflation the quadrature error of ``expected`` can cause,
-        ``sum(delta^2 / E)`` over cells (small next to ``sqrt(2 dof)``).
-    outside_bounds : int
-        Samples inside the domain but outside ``bounds`` (one extra cell).
-    """
-
-    statistic: float
-    dof: int
-    pvalue: float
-    significance: float
-    passed: bool
-    message: str
-    observed: np.ndarray = field(repr=False)
-    expected: np.ndarray = field(repr=False)
-    edges: tuple = field(repr=False)
-    coordinates: tuple = ()
-    domain: str = ""
-    n: int = 0
-    pdf_integral: float = float("nan")
-    integration_error: float = 0.0
-    outside_bounds: int = 0
-
 
 @dataclass(frozen=True)
 class PowerResult:
@@ -182,375 +119,6 @@ class PowerResult:
     n_reject: int | None
     target: float
     replicates: int
-
-
-# --------------------------------------------------------------------------
-# domains
-# --------------------------------------------------------------------------
-
-def _bounds(domain, bounds):
-    full = _DOMAIN_INFO[domain][0]
-    if bounds is None:
-        return full, True
-    b = as_array(bounds, "bounds")
-    if b.shape != (2, 2):
-        raise ValueError(f"bounds must be ((lo0, hi0), (lo1, hi1)); got shape {b.shape}")
-    for k in range(2):
-        lo, hi = b[k]
-        flo, fhi = full[k]
-        if not (flo <= lo < hi <= fhi):
-            raise ValueError(f"bounds[{k}] must satisfy {flo} <= lo < hi <= {fhi} for domain "
-                             f"{domain!r}; got ({lo}, {hi})")
-    bb = ((float(b[0, 0]), float(b[0, 1])), (float(b[1, 0]), float(b[1, 1])))
-    return bb, bb == full
-
-
-def _to_params(x, domain):
-    """Parameter coordinates of points ``x`` and a mask of points in the domain."""
-    if domain == "square":
-        c0, c1 = x[:, 0], x[:, 1]
-        tol = 1e-12
-        ok = (c0 >= -tol) & (c0 <= 1 + tol) & (c1 >= -tol) & (c1 <= 1 + tol)
-        return np.clip(c0, 0, 1), np.clip(c1, 0, 1), ok
-    phi_src = (x[:, 0], x[:, 1]) if domain == "disk" else (x[:, 0], x[:, 2])
-    phi = np.arctan2(phi_src[1], phi_src[0])
-    phi = np.where(phi < 0.0, phi + _TWO_PI, phi)
-    phi = np.where(phi >= _TWO_PI, 0.0, phi)
-    if domain == "disk":
-        r2 = x[:, 0] ** 2 + x[:, 1] ** 2
-        ok = r2 <= 1.0 + 1e-9
-        return np.minimum(r2, 1.0), phi, ok
-    norm = np.sqrt(np.einsum("ij,ij->i", x, x))
-    ok = np.abs(norm - 1.0) <= 1e-6
-    y = x[:, 1]
-    if domain == "hemisphere":
-        ok &= y >= -1e-9
-        return np.clip(y, 0.0, 1.0), phi, ok
-    return np.clip(y, -1.0, 1.0), phi, ok
-
-
-def _from_params(c0, c1, domain):
-    if domain == "square":
-        return np.stack([c0, c1], axis=-1)
-    if domain == "disk":
-        r = np.sqrt(c0)
-        return np.stack([r * np.cos(c1), r * np.sin(c1)], axis=-1)
-    s = np.sqrt(np.maximum(0.0, 1.0 - c0 * c0))
-    return np.stack([s * np.cos(c1), c0, s * np.sin(c1)], axis=-1)
-
-
-def _eval_pdf(pdf, pts, name="pdf"):
-    out = np.empty(pts.shape[0])
-    step = 1 << 20
-    for i in range(0, pts.shape[0], step):
-        val = np.asarray(pdf(pts[i:i + step]), dtype=np.float64)
-        if val.shape != (min(step, pts.shape[0] - i),):
-            raise ValueError(f"{name}(x) must return shape (m,) for m points; got shape {val.shape}")
-        out[i:i + step] = val
-    return out
-
-
-def _sample_points(sample, u, dim):
-    x = sample(u)
-    if isinstance(x, tuple):
-        x = x[0]
-    x = np.asarray(x, dtype=np.float64)
-    if x.shape != (u.shape[0], dim):
-        raise ValueError(f"sample(u) must return shape ({u.shape[0]}, {dim}) for this domain; "
-                         f"got shape {x.shape}")
-    return x
-
-
-# --------------------------------------------------------------------------
-# chi-square test
-# --------------------------------------------------------------------------
-
-@functools.lru_cache(maxsize=16)
-def _gauss_legendre(q):
-    nodes, weights = np.polynomial.legendre.leggauss(q)
-    nodes.setflags(write=False)
-    weights.setflags(write=False)
-    return nodes, weights
-
-
-def _cell_integrals(pdf, domain, lo0, hi0, lo1, hi1, q):
-    """Integral of the pdf over the cells ``[lo0, hi0] x [lo1, hi1]`` (arrays
-    of cell bounds in parameter space) by q-point Gauss-Legendre per axis.
-
-    Returns the integrals and a message if the pdf is negative or not finite
-    at some node (else None).
-    """
-    nodes, weights = _gauss_legendre(q)
-    h0, h1 = 0.5 * (hi0 - lo0), 0.5 * (hi1 - lo1)
-    m0, m1 = 0.5 * (hi0 + lo0), 0.5 * (hi1 + lo1)
-    c0 = m0[:, None, None] + h0[:, None, None] * nodes[None, :, None]
-    c1 = m1[:, None, None] + h1[:, None, None] * nodes[None, None, :]
-    c0, c1 = np.broadcast_arrays(c0, c1)
-    vals = _eval_pdf(pdf, _from_params(c0.ravel(), c1.ravel(), domain)).reshape(c0.shape)
-    problem = None if np.all(np.isfinite(vals) & (vals >= 0.0)) else _pdf_problem(vals)
-    jac = _DOMAIN_INFO[domain][2]
-    integral = np.einsum("kij,i,j->k", vals, weights, weights) * h0 * h1 * jac
-    return integral, problem
-
-
-def _expected_counts(pdf, domain, edges, n, int_tol, q_max=512, budget=4_000_000):
-    """Per-cell adaptive Gauss-Legendre: ``q`` doubles only in the cells whose
-    expected count is still changing (a discontinuity of the pdf inside them).
-
-    Refinement stops when the change of the last doubling, ``delta``, could
-    move the statistic by less than a tenth of its standard deviation
-    (``sum(delta^2 / E) <= 0.1 sqrt(2 cells)``) and the integral by less than
-    ``int_tol`` (``sum |delta| / n``), or when the node budget is spent.
-
-    Returns ``(expected, chi2_inflation, integral_error, problem)`` where
-    ``problem`` is a message when the pdf is negative or not finite somewhere.
-    """
-    e0, e1 = edges
-    b0, b1 = e0.size - 1, e1.size - 1
-    i0, i1 = np.meshgrid(np.arange(b0), np.arange(b1), indexing="ij")
-    lo0, hi0 = e0[i0.ravel()], e0[i0.ravel() + 1]
-    lo1, hi1 = e1[i1.ravel()], e1[i1.ravel() + 1]
-    cells = b0 * b1
-    allowed = 0.1 * np.sqrt(2.0 * cells)  # a tenth of the statistic's standard deviation
-    q = 4
-    prev, problem = _cell_integrals(pdf, domain, lo0, hi0, lo1, hi1, q)
-    if problem:
-        return None, 0.0, 0.0, problem
-    expected = n * prev
-    err = np.full(cells, np.inf)
-    dabs = np.full(cells, np.inf)
-    active = np.arange(cells)
-    while active.size:
-        if 2 * q > q_max or active.size * 4 * q * q > budget:
-            break
-        q *= 2
-        cur, problem = _cell_integrals(pdf, domain, lo0[active], hi0[active],
-                                       lo1[active], hi1[active], q)
-        if problem:
-            return None, 0.0, 0.0, problem
-        new = n * cur
-        dabs[active] = np.abs(new - expected[active])
-        err[active] = dabs[active] ** 2 / np.maximum(new, 1.0)
-        expected[active] = new
-        if np.sum(err) <= allowed and np.sum(dabs) <= int_tol * n:
-            break
-        keep = (err[active] > allowed / cells) | (dabs[active] > int_tol * n / cells)
-        active = active[keep]
-    total_err = float(np.sum(err))
-    int_err = float(np.sum(dabs) / n)
-    if total_err > allowed:
-        warnings.warn(f"chi2_test: pdf quadrature not converged in {active.size} cells "
-                      f"(q = {q} nodes per axis; chi-square inflation ~{total_err:.3g}); "
-                      "align bin edges with the pdf's discontinuities (bounds=, bins=)",
-                      RuntimeWarning, stacklevel=3)
-    return expected.reshape(b0, b1), total_err, int_err, None
-
-
-def _pdf_problem(vals):
-    nonfinite = int((~np.isfinite(vals)).sum())
-    if nonfinite:
-        return f"pdf is NaN or Inf at {nonfinite} quadrature nodes"
-    return f"pdf is negative at {int((vals < 0).sum())} quadrature nodes (minimum {np.min(vals):.3g})"
-
-
-def _default_bins(n, domain):
-    target = 100.0  # mean expected count per cell (fewer cells when n is small)
-    if domain == "square":
-        m = int(np.clip(round(np.sqrt(n / target)), 2, 80))
-        return (m, m)
-    m = int(np.clip(round(np.sqrt(n / (2 * target))), 1, 64))
-    return (m, 2 * m)
-
-
-def _fail(msg, *, sig, obs, exp, edges, coords, domain, n, integral=float("nan"), outside=0):
-    return Chi2Result(statistic=float("inf"), dof=0, pvalue=0.0, significance=sig, passed=False,
-                      message=msg, observed=obs, expected=exp, edges=edges, coordinates=coords,
-                      domain=domain, n=n, pdf_integral=integral, outside_bounds=outside)
-
-
-def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000_000,
-              rng=None, bins=None, bounds=None, significance: float = 1e-3,
-              test_count: int = 1, min_expected: float = 5.0,
-              normalization_atol: float = 1e-3, batch_size: int = 1_000_000) -> Chi2Result:
-    """Chi-square goodness-of-fit test of a sampler against its pdf.
-
-    Parameters
-    ----------
-    sample : callable
-        ``sample(u)`` maps ``(m, 2)`` uniform points in [0, 1)^2 to ``(m, 2)``
-        points (square, disk) or ``(m, 3)`` unit directions (hemisphere,
-        sphere). If it returns a tuple, the first element is used (so a BSDF's
-        ``lambda u: bsdf.sample(wo, u)`` works).
-    pdf : callable
-        ``pdf(x)`` gives the density of ``(m, d)`` points, shape ``(m,)``:
-        per unit area (square, disk) or per steradian (directions).
-    domain : {'square', 'disk', 'hemisphere', 'sphere'}
-        'square' is [0, 1]^2, 'disk' the unit disk, 'hemisphere' the
-        directions with ``y >= 0`` (normal +y) and 'sphere' all directions.
-    n : int
-        Number of samples (drawn in batches of ``batch_size``).
-    rng : None, int, SeedSequence or Generator
-        Source of the uniform points.
-    bins : (int, int), optional
-        Histogram resolution over the parameter rectangle: ``(x, y)`` for the
-        square, ``(r^2, phi)`` for the disk, ``(cos theta, phi)`` for
-        directions, so that every cell has the same area or solid angle.
-        Default: about 100 expected samples per cell.
-    bounds : ((lo0, hi0), (lo1, hi1)), optional
-        A sub-rectangle of the parameter rectangle to bin, e.g.
-        ``((cos_theta_max, 1), (0, 2 pi))`` for a narrow cone so that its
-        edge is a bin edge. Samples in the domain but outside ``bounds`` form
-        one extra cell with expected count ``n (1 - integral over bounds)``.
-    significance : float
-        Family-wise significance (probability of rejecting a correct pair).
-    test_count : int
-        Number of tests in the family: the per-test significance is
-        ``sidak_significance(significance, test_count)``.
-    min_expected : float
-        Cells with a smaller expected count are pooled (Mitsuba uses 5).
-    normalization_atol : float
-        With full bounds, the pdf must integrate to 1 within this tolerance
-        (``inf`` disables this sanity check, leaving the statistic alone).
-
-    Returns
-    -------
-    Chi2Result
-
-    Notes
-    -----
-    Sanity checks come first and fail the test outright (``pvalue = 0``):
-    non-finite samples, samples outside the domain, a pdf that is negative,
-    NaN or infinite at a quadrature node, a pdf not integrating to 1, and
-    samples in a cell where the pdf integrates to 0.
-
-    The expected count of a cell is ``n`` times the integral of the pdf over
-    it, computed with q-point Gauss-Legendre per axis (nodes interior to the
-    cell, so a support boundary on a cell edge is exact and a pole or
-    horizon singularity is never evaluated). ``q`` doubles from 4, in the
-    cells still changing only, until the change in the expected counts,
-    ``delta``, could move the statistic by less than a tenth of its standard
-    deviation, ``sum(delta^2 / E) <= 0.1 sqrt(2 cells)``, and the integral by
-    less than ``normalization_atol / 10``, or the node budget (4M) is spent
-    (then a warning if the statistic could be affected). The normalisation
-    check allows for the remaining quadrature error ``sum |delta| / n``.
-
-    Cells with expected count below ``min_expected`` are merged, smallest
-    first, into one pooled cell (grown until it reaches ``min_expected``);
-    ``T = sum (O - E)^2 / E`` over the remaining cells is compared with a
-    chi-square distribution with ``cells - 1`` degrees of freedom.
-
-    References
-    ----------
-    .. [1] W. Jakob et al., Mitsuba 3 renderer, ``mitsuba/python/chi2.py``
-       (the ChiSquareTest design: pooling, Sidak correction, sanity checks).
-    .. [2] K. Pearson, "On the criterion that a given system of deviations
-       from the probable ...", Philosophical Magazine 50(302), 1900.
-
-    Examples
-    --------
-    >>> from mcvar import warps
-    >>> r = chi2_test(warps.square_to_cosine_hemisphere,
-    ...               warps.square_to_cosine_hemisphere_pdf, 'hemisphere',
-    ...               n=100_000, rng=20240601)
-    >>> r.passed
-    True
-    """
-    if not callable(sample):
-        raise TypeError(f"sample must be callable; got {type(sample).__name__}")
-    if not callable(pdf):
-        raise TypeError(f"pdf must be callable; got {type(pdf).__name__}")
-    domain = check_choice(domain, "domain", DOMAINS)
-    n = check_count(n, "n")
-    batch_size = check_count(batch_size, "batch_size")
-    sig = sidak_significance(significance, test_count)
-    min_expected = check_positive(min_expected, "min_expected")
-    normalization_atol = check_positive(normalization_atol, "normalization_atol", allow_inf=True)
-    gen = as_rng(rng)
-    full_bounds, is_full = _bounds(domain, bounds)
-    if bins is None:
-        bins = _default_bins(n, domain)
-    if np.ndim(bins) != 1 or len(bins) != 2:
-        raise ValueError(f"bins must be a pair of ints; got {bins!r}")
-    bins = (check_count(bins[0], "bins[0]"), check_count(bins[1], "bins[1]"))
-    _, coords, _, dim = _DOMAIN_INFO[domain]
-    edges = tuple(np.linspace(full_bounds[k][0], full_bounds[k][1], bins[k] + 1) for k in range(2))
-    empty = np.zeros(bins)
-
-    # --- samples -----------------------------------------------------------
-    observed = np.zeros(bins[0] * bins[1], dtype=np.int64)
-    outside = 0
-    for start in range(0, n, batch_size):
-        m = min(batch_size, n - start)
-        x = _sample_points(sample, gen.random((m, 2)), dim)
-        finite = np.all(np.isfinite(x), axis=1)
-        if not np.all(finite):
-            return _fail(f"{int((~finite).sum())} of {m} samples are NaN or Inf", sig=sig, obs=empty,
-                         exp=empty, edges=edges, coords=coords, domain=domain, n=n)
-        c0, c1, ok = _to_params(x, domain)
-        if not np.all(ok):
-            return _fail(f"{int((~ok).sum())} of {m} samples lie outside the {domain} domain",
-                         sig=sig, obs=empty, exp=empty, edges=edges, coords=coords, domain=domain, n=n)
-        (lo0, hi0), (lo1, hi1) = full_bounds
-        inb = (c0 >= lo0) & (c0 <= hi0) & (c1 >= lo1) & (c1 <= hi1)
-        outside += int((~inb).sum())
-        i0 = np.minimum(((c0[inb] - lo0) / (hi0 - lo0) * bins[0]).astype(np.int64), bins[0] - 1)
-        i1 = np.minimum(((c1[inb] - lo1) / (hi1 - lo1) * bins[1]).astype(np.int64), bins[1] - 1)
-        observed += np.bincount(i0 * bins[1] + i1, minlength=bins[0] * bins[1])
-    observed = observed.reshape(bins).astype(np.float64)
-
-    # --- expected counts -----------------------------------------------------
-    int_tol = 0.1 * normalization_atol if np.isfinite(normalization_atol) else np.inf
-    expected, ierr, int_err, problem = _expected_counts(pdf, domain, edges, n, int_tol)
-    if problem is not None:
-        return _fail(problem, sig=sig, obs=observed, exp=empty, edges=edges, coords=coords,
-                     domain=domain, n=n, outside=outside)
-    integral = float(expected.sum() / n)
-    if is_full and not abs(integral - 1.0) <= normalization_atol + int_err:
-        return _fail(f"pdf integrates to {integral:.6g} over the {domain}, not 1 "
-                     f"(tolerance {normalization_atol:g} + quadrature error {int_err:.2g})", sig=sig, obs=observed, exp=expected,
-                     edges=edges, coords=coords, domain=domain, n=n, integral=integral, outside=outside)
-    if not is_full and not integral <= 1.0 + normalization_atol + int_err:
-        return _fail(f"pdf integrates to {integral:.6g} > 1 over bounds alone", sig=sig, obs=observed,
-                     exp=expected, edges=edges, coords=coords, domain=domain, n=n,
-                     integral=integral, outside=outside)
-
-    # --- pooling and statistic ---------------------------------------------
-    obs = observed.ravel()
-    exp = expected.ravel()
-    if not is_full:
-        obs = np.append(obs, outside)
-        exp = np.append(exp, max(0.0, n * (1.0 - integral)))
-    zero = exp <= 0.0
-    if np.any(obs[zero] > 0):
-        k = int(obs[zero].sum())
-        return _fail(f"{k} samples fell in cells where the pdf integrates to 0", sig=sig,
-                     obs=observed, exp=expected, edges=edges, coords=coords, domain=domain, n=n,
-                     integral=integral, outside=outside)
-    obs, exp = obs[~zero], exp[~zero]
-    order = np.argsort(exp, kind="stable")
-    obs, exp = obs[order], exp[order]
-    cum = np.cumsum(exp)
-    small = int(np.searchsorted(exp, min_expected, side="left"))  # cells with E < min_expected
-    if small > 0:
-        # grow the pool to at least min_expected
-        k = max(small, int(np.searchsorted(cum, min_expected, side="left")) + 1)
-        k = min(k, exp.size)
-        obs = np.append(obs[k:], obs[:k].sum())
-        exp = np.append(exp[k:], exp[:k].sum())
-    dof = int(exp.size - 1)
-    if dof < 1:
-        raise ValueError(f"n = {n} is too small for {bins} bins: fewer than 2 cells reach the "
-                         f"expected count {min_expected}")
-    stat = float(np.sum((obs - exp) ** 2 / exp))
-    pval = float(stats.chi2.sf(stat, dof))
-    passed = pval > sig
-    msg = (f"chi-square {stat:.4g} on {dof} dof, p = {pval:.3g} "
-           f"{'>' if passed else '<='} significance {sig:.3g}: "
-           f"{'accepted' if passed else 'rejected'}")
-    return Chi2Result(statistic=stat, dof=dof, pvalue=pval, significance=sig, passed=passed,
-                      message=msg, observed=observed, expected=expected, edges=edges,
-                      coordinates=coords, domain=domain, n=n, pdf_integral=integral,
-                      integration_error=ierr, outside_bounds=outside)
 
 
 # --------------------------------------------------------------------------
@@ -845,17 +413,20 @@ def check_extremes(sample: Callable, pdf: Callable, domain: Domain, *, u=None) -
         Passes when ``sample`` raises nothing and returns finite points in the
         domain, and ``pdf`` of them is finite and >= 0 (0 is allowed: the
         boundary may map to the edge of the support, e.g. the horizon of a
-        cosine lobe).
+        cosine lobe). A sampler returning ``(points, valid)`` is judged on
+        its valid points only.
     """
     domain = check_choice(domain, "domain", DOMAINS)
     u = _boundary_u() if u is None else as_array(u, "u", ndim=2, last=2)
     dim = _DOMAIN_INFO[domain][3]
     m = u.shape[0]
     try:
-        x = _sample_points(sample, u, dim)
+        x, valid = _sample_points(sample, u, dim)
     except (IndexError, ValueError, FloatingPointError, ZeroDivisionError) as exc:
         return CheckResult("extremes", False, float("inf"), 0.0,
                            f"sample raised {type(exc).__name__} on the boundary: {exc}", m)
+    if valid is not None:  # failed samples are allowed anywhere (chi2_test's (points, valid))
+        u, x = u[valid], x[valid]
     finite = np.all(np.isfinite(x), axis=1)
     if not np.all(finite):
         bad = u[~finite][0]
@@ -873,7 +444,7 @@ def check_extremes(sample: Callable, pdf: Callable, domain: Domain, *, u=None) -
                            f"pdf raised {type(exc).__name__} on boundary samples: {exc}", m)
     bad = ~(np.isfinite(p) & (p >= 0.0))
     if np.any(bad):
-        first = u[np.nonzero(np.broadcast_to(bad, (m,)))[0][0]]
+        first = u[np.nonzero(np.broadcast_to(bad, (x.shape[0],)))[0][0]]
         return CheckResult("extremes", False, float(bad.sum()), 0.0,
                            f"pdf is NaN, Inf or negative at {int(bad.sum())} of {m} boundary samples "
                            f"(first at u = {first.tolist()})", m)

@@ -1,0 +1,700 @@
+"""The chi-square goodness-of-fit machinery of :mod:`mcvar.testing` (layer 3).
+
+Everything public here is re-exported by :mod:`mcvar.testing`: import it from
+there. :func:`chi2_test` tests any (sampler, pdf) pair on the square, disk,
+hemisphere or sphere, samplers that may fail included; :func:`bsdf_chi2_test`
+adapts a BSDF with fixed ``wo`` to it.
+"""
+from __future__ import annotations
+
+import functools
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Callable, Literal
+
+import numpy as np
+from scipy import stats
+
+from .._validation import as_array, as_directions, as_rng, check_count, check_choice, check_positive
+
+__all__ = ["DOMAINS", "Chi2Result", "sidak_significance", "chi2_test", "bsdf_chi2_test"]
+
+Domain = Literal["square", "disk", "hemisphere", "sphere"]
+DOMAINS = ("square", "disk", "hemisphere", "sphere")
+
+_TWO_PI = 2.0 * np.pi
+# Parameter rectangle, coordinate names, Jacobian of the parameterisation and
+# dimension of the points of each domain. Directions are binned in
+# (cos theta, phi): d(omega) = d(cos theta) d(phi), so equal parameter areas
+# are equal solid angles; the disk in (r^2, phi): dA = (1/2) d(r^2) d(phi).
+_DOMAIN_INFO = {
+    "square": (((0.0, 1.0), (0.0, 1.0)), ("x", "y"), 1.0, 2),
+    "disk": (((0.0, 1.0), (0.0, _TWO_PI)), ("r^2", "phi"), 0.5, 2),
+    "hemisphere": (((0.0, 1.0), (0.0, _TWO_PI)), ("cos_theta", "phi"), 1.0, 3),
+    "sphere": (((-1.0, 1.0), (0.0, _TWO_PI)), ("cos_theta", "phi"), 1.0, 3),
+}
+
+
+def sidak_significance(significance: float, test_count: int) -> float:
+    """Per-test significance keeping the family-wise false-rejection rate at
+    ``significance`` over ``test_count`` independent tests (Sidak):
+    ``1 - (1 - significance)^(1 / test_count)``.
+
+    Examples
+    --------
+    >>> round(sidak_significance(1e-3, 10), 8)
+    0.00010005
+    """
+    a = check_positive(significance, "significance")
+    if not a < 1.0:
+        raise ValueError(f"significance must lie in (0, 1); got {a}")
+    m = check_count(test_count, "test_count")
+    return float(-np.expm1(np.log1p(-a) / m))
+
+
+# --------------------------------------------------------------------------
+# result
+# --------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class Chi2Result:
+    """Outcome of :func:`chi2_test` and :func:`bsdf_chi2_test`.
+
+    Attributes
+    ----------
+    statistic, dof, pvalue : float, int, float
+        Pearson's statistic over the pooled cells, its degrees of freedom
+        (cells - 1) and the upper-tail probability. ``statistic = inf`` and
+        ``pvalue = 0`` when a sanity check failed (see ``message``).
+    significance : float
+        The significance each statistical test used: Sidak-corrected for
+        ``test_count`` and, when the binomial check of the valid fraction
+        runs too, for those two tests.
+    passed : bool
+        ``pvalue > significance`` and every sanity check passed.
+    message : str
+    observed, expected : ndarray, shape (bins[0], bins[1])
+        Histograms over the parameter rectangle (before pooling), so that
+        observed and expected can be plotted side by side.
+    edges : tuple of two ndarray
+        Bin edges along each parameter axis.
+    coordinates : tuple of str
+        Names of the parameter axes, e.g. ``('cos_theta', 'phi')``.
+    domain : str
+    n : int
+    pdf_integral : float
+        Integral of the pdf over ``bounds`` (numerical quadrature).
+    integration_error : float
+        Chi-square inflation the quadrature error of ``expected`` can cause,
+        ``sum(delta^2 / E)`` over cells (small next to ``sqrt(2 dof)``).
+    outside_bounds : int
+        Samples inside the domain but outside ``bounds`` (one extra cell).
+    failed : int
+        Samples the sampler reported as failed (``valid`` False), or for
+        :func:`bsdf_chi2_test` failed BSDF samples (pdf 0).
+    valid_pvalue : float
+        Two-sided binomial p-value of the number of valid samples against
+        ``n * pdf_integral`` (NaN when the check did not run).
+    delta : int
+        :func:`bsdf_chi2_test` only: samples from a Dirac-delta lobe, left
+        out of the histogram like failed samples.
+    """
+
+    statistic: float
+    dof: int
+    pvalue: float
+    significance: float
+    passed: bool
+    message: str
+    observed: np.ndarray = field(repr=False)
+    expected: np.ndarray = field(repr=False)
+    edges: tuple = field(repr=False)
+    coordinates: tuple = ()
+    domain: str = ""
+    n: int = 0
+    pdf_integral: float = float("nan")
+    integration_error: float = 0.0
+    outside_bounds: int = 0
+    failed: int = 0
+    valid_pvalue: float = float("nan")
+    delta: int = 0
+
+
+
+# --------------------------------------------------------------------------
+# domains
+# --------------------------------------------------------------------------
+
+def _bounds(domain, bounds):
+    full = _DOMAIN_INFO[domain][0]
+    if bounds is None:
+        return full, True
+    b = as_array(bounds, "bounds")
+    if b.shape != (2, 2):
+        raise ValueError(f"bounds must be ((lo0, hi0), (lo1, hi1)); got shape {b.shape}")
+    for k in range(2):
+        lo, hi = b[k]
+        flo, fhi = full[k]
+        if not (flo <= lo < hi <= fhi):
+            raise ValueError(f"bounds[{k}] must satisfy {flo} <= lo < hi <= {fhi} for domain "
+                             f"{domain!r}; got ({lo}, {hi})")
+    bb = ((float(b[0, 0]), float(b[0, 1])), (float(b[1, 0]), float(b[1, 1])))
+    return bb, bb == full
+
+
+def _to_params(x, domain):
+    """Parameter coordinates of points ``x`` and a mask of points in the domain."""
+    if domain == "square":
+        c0, c1 = x[:, 0], x[:, 1]
+        tol = 1e-12
+        ok = (c0 >= -tol) & (c0 <= 1 + tol) & (c1 >= -tol) & (c1 <= 1 + tol)
+        return np.clip(c0, 0, 1), np.clip(c1, 0, 1), ok
+    phi_src = (x[:, 0], x[:, 1]) if domain == "disk" else (x[:, 0], x[:, 2])
+    phi = np.arctan2(phi_src[1], phi_src[0])
+    phi = np.where(phi < 0.0, phi + _TWO_PI, phi)
+    phi = np.where(phi >= _TWO_PI, 0.0, phi)
+    if domain == "disk":
+        r2 = x[:, 0] ** 2 + x[:, 1] ** 2
+        ok = r2 <= 1.0 + 1e-9
+        return np.minimum(r2, 1.0), phi, ok
+    norm = np.sqrt(np.einsum("ij,ij->i", x, x))
+    ok = np.abs(norm - 1.0) <= 1e-6
+    y = x[:, 1]
+    if domain == "hemisphere":
+        ok &= y >= -1e-9
+        return np.clip(y, 0.0, 1.0), phi, ok
+    return np.clip(y, -1.0, 1.0), phi, ok
+
+
+def _from_params(c0, c1, domain):
+    if domain == "square":
+        return np.stack([c0, c1], axis=-1)
+    if domain == "disk":
+        r = np.sqrt(c0)
+        return np.stack([r * np.cos(c1), r * np.sin(c1)], axis=-1)
+    s = np.sqrt(np.maximum(0.0, 1.0 - c0 * c0))
+    return np.stack([s * np.cos(c1), c0, s * np.sin(c1)], axis=-1)
+
+
+def _eval_pdf(pdf, pts, name="pdf"):
+    out = np.empty(pts.shape[0])
+    step = 1 << 20
+    for i in range(0, pts.shape[0], step):
+        val = np.asarray(pdf(pts[i:i + step]), dtype=np.float64)
+        if val.shape != (min(step, pts.shape[0] - i),):
+            raise ValueError(f"{name}(x) must return shape (m,) for m points; got shape {val.shape}")
+        out[i:i + step] = val
+    return out
+
+
+def _sample_points(sample, u, dim):
+    """Points of ``sample(u)`` and its validity mask (None if not reported).
+
+    ``sample(u)`` returns the points, or ``(points, valid)`` with ``valid`` a
+    boolean array, or any other tuple whose first element is the points
+    (e.g. a BSDF's ``(wi, weight, pdf)``).
+    """
+    out = sample(u)
+    valid = None
+    if isinstance(out, tuple):
+        if len(out) == 2 and isinstance(out[1], np.ndarray) and out[1].dtype == np.bool_:
+            valid = out[1]
+            if valid.shape != (u.shape[0],):
+                raise ValueError(f"the valid mask of sample(u) must have shape ({u.shape[0]},); "
+                                 f"got shape {valid.shape}")
+        out = out[0]
+    x = np.asarray(out, dtype=np.float64)
+    if x.shape != (u.shape[0], dim):
+        raise ValueError(f"sample(u) must return shape ({u.shape[0]}, {dim}) for this domain; "
+                         f"got shape {x.shape}")
+    return x, valid
+
+
+# --------------------------------------------------------------------------
+# chi-square test
+# --------------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=16)
+def _gauss_legendre(q):
+    nodes, weights = np.polynomial.legendre.leggauss(q)
+    nodes.setflags(write=False)
+    weights.setflags(write=False)
+    return nodes, weights
+
+
+def _cell_integrals(pdf, domain, lo0, hi0, lo1, hi1, q):
+    """Integral of the pdf over the cells ``[lo0, hi0] x [lo1, hi1]`` (arrays
+    of cell bounds in parameter space) by q-point Gauss-Legendre per axis.
+
+    Returns the integrals and a message if the pdf is negative or not finite
+    at some node (else None).
+    """
+    nodes, weights = _gauss_legendre(q)
+    h0, h1 = 0.5 * (hi0 - lo0), 0.5 * (hi1 - lo1)
+    m0, m1 = 0.5 * (hi0 + lo0), 0.5 * (hi1 + lo1)
+    c0 = m0[:, None, None] + h0[:, None, None] * nodes[None, :, None]
+    c1 = m1[:, None, None] + h1[:, None, None] * nodes[None, None, :]
+    c0, c1 = np.broadcast_arrays(c0, c1)
+    vals = _eval_pdf(pdf, _from_params(c0.ravel(), c1.ravel(), domain)).reshape(c0.shape)
+    problem = None if np.all(np.isfinite(vals) & (vals >= 0.0)) else _pdf_problem(vals)
+    jac = _DOMAIN_INFO[domain][2]
+    integral = np.einsum("kij,i,j->k", vals, weights, weights) * h0 * h1 * jac
+    return integral, problem
+
+
+def _expected_counts(pdf, domain, edges, n, int_tol, q_max=512, budget=4_000_000):
+    """Per-cell adaptive Gauss-Legendre: ``q`` doubles only in the cells whose
+    expected count is still changing (a discontinuity of the pdf inside them).
+
+    Refinement stops when the change of the last doubling, ``delta``, could
+    move the statistic by less than a tenth of its standard deviation
+    (``sum(delta^2 / E) <= 0.1 sqrt(2 cells)``) and the integral by less than
+    ``int_tol`` (``sum |delta| / n``), or when the node budget is spent.
+
+    Returns ``(expected, chi2_inflation, integral_error, problem)`` where
+    ``problem`` is a message when the pdf is negative or not finite somewhere.
+    """
+    e0, e1 = edges
+    b0, b1 = e0.size - 1, e1.size - 1
+    i0, i1 = np.meshgrid(np.arange(b0), np.arange(b1), indexing="ij")
+    lo0, hi0 = e0[i0.ravel()], e0[i0.ravel() + 1]
+    lo1, hi1 = e1[i1.ravel()], e1[i1.ravel() + 1]
+    cells = b0 * b1
+    allowed = 0.1 * np.sqrt(2.0 * cells)  # a tenth of the statistic's standard deviation
+    q = 4
+    prev, problem = _cell_integrals(pdf, domain, lo0, hi0, lo1, hi1, q)
+    if problem:
+        return None, 0.0, 0.0, problem
+    expected = n * prev
+    err = np.full(cells, np.inf)
+    dabs = np.full(cells, np.inf)
+    active = np.arange(cells)
+    while active.size:
+        if 2 * q > q_max or active.size * 4 * q * q > budget:
+            break
+        q *= 2
+        cur, problem = _cell_integrals(pdf, domain, lo0[active], hi0[active],
+                                       lo1[active], hi1[active], q)
+        if problem:
+            return None, 0.0, 0.0, problem
+        new = n * cur
+        dabs[active] = np.abs(new - expected[active])
+        err[active] = dabs[active] ** 2 / np.maximum(new, 1.0)
+        expected[active] = new
+        if np.sum(err) <= allowed and np.sum(dabs) <= int_tol * n:
+            break
+        keep = (err[active] > allowed / cells) | (dabs[active] > int_tol * n / cells)
+        active = active[keep]
+    total_err = float(np.sum(err))
+    int_err = float(np.sum(dabs) / n)
+    if total_err > allowed:
+        warnings.warn(f"chi2_test: pdf quadrature not converged in {active.size} cells "
+                      f"(q = {q} nodes per axis; chi-square inflation ~{total_err:.3g}); "
+                      "align bin edges with the pdf's discontinuities (bounds=, bins=)",
+                      RuntimeWarning, stacklevel=3)
+    return expected.reshape(b0, b1), total_err, int_err, None
+
+
+def _pdf_problem(vals):
+    nonfinite = int((~np.isfinite(vals)).sum())
+    if nonfinite:
+        return f"pdf is NaN or Inf at {nonfinite} quadrature nodes"
+    return f"pdf is negative at {int((vals < 0).sum())} quadrature nodes (minimum {np.min(vals):.3g})"
+
+
+def _default_bins(n, domain):
+    target = 100.0  # mean expected count per cell (fewer cells when n is small)
+    if domain == "square":
+        m = int(np.clip(round(np.sqrt(n / target)), 2, 80))
+        return (m, m)
+    m = int(np.clip(round(np.sqrt(n / (2 * target))), 1, 64))
+    return (m, 2 * m)
+
+
+def _fail(msg, *, sig, obs, exp, edges, coords, domain, n, integral=float("nan"), outside=0,
+          failed=0, valid_p=float("nan")):
+    return Chi2Result(statistic=float("inf"), dof=0, pvalue=0.0, significance=sig, passed=False,
+                      message=msg, observed=obs, expected=exp, edges=edges, coordinates=coords,
+                      domain=domain, n=n, pdf_integral=integral, outside_bounds=outside,
+                      failed=failed, valid_pvalue=valid_p)
+
+
+def _valid_fraction_pvalue(valid, n, integral, int_err):
+    """Two-sided binomial p-value of ``valid`` successes in ``n`` trials with
+    success probability ``integral``, giving the quadrature error the benefit
+    of the doubt (the probability nearest ``valid / n`` within ``int_err``)."""
+    p = float(np.clip(valid / n, integral - int_err, integral + int_err))
+    p = min(max(p, 0.0), 1.0)
+    if p == 0.0 or p == 1.0:
+        return 1.0 if valid == round(p * n) else 0.0
+    return float(stats.binomtest(int(valid), int(n), p).pvalue)
+
+
+def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000_000,
+              rng=None, bins=None, bounds=None, significance: float = 1e-3,
+              test_count: int = 1, min_expected: float = 5.0,
+              normalization_atol: float = 1e-3, batch_size: int = 1_000_000) -> Chi2Result:
+    """Chi-square goodness-of-fit test of a sampler against its pdf.
+
+    Parameters
+    ----------
+    sample : callable
+        ``sample(u)`` maps ``(m, 2)`` uniform points in [0, 1)^2 to ``(m, 2)``
+        points (square, disk) or ``(m, 3)`` unit directions (hemisphere,
+        sphere). A sampler whose samples may *fail* (a direction drawn below
+        the horizon, a zero weight) returns ``(points, valid)`` instead, with
+        ``valid`` a boolean ndarray of shape ``(m,)``: failed samples are left
+        out of the histogram and their points are ignored (they may be NaN or
+        outside the domain). Any other tuple is read as ``(points, ...)``
+        (so a BSDF's ``lambda u: bsdf.sample(wo, u)`` works; see
+        :func:`bsdf_chi2_test` for BSDFs with failures or delta lobes).
+    pdf : callable
+        ``pdf(x)`` gives the density of ``(m, d)`` points, shape ``(m,)``:
+        per unit area (square, disk) or per steradian (directions). For a
+        sampler with failures it is the density of the *valid* samples, which
+        integrates to the probability that a sample is valid (< 1).
+    domain : {'square', 'disk', 'hemisphere', 'sphere'}
+        'square' is [0, 1]^2, 'disk' the unit disk, 'hemisphere' the
+        directions with ``y >= 0`` (normal +y) and 'sphere' all directions.
+    n : int
+        Number of samples, failed ones included (drawn in batches of
+        ``batch_size``).
+    rng : None, int, SeedSequence or Generator
+        Source of the uniform points.
+    bins : (int, int), optional
+        Histogram resolution over the parameter rectangle: ``(x, y)`` for the
+        square, ``(r^2, phi)`` for the disk, ``(cos theta, phi)`` for
+        directions, so that every cell has the same area or solid angle.
+        Default: about 100 expected samples per cell.
+    bounds : ((lo0, hi0), (lo1, hi1)), optional
+        A sub-rectangle of the parameter rectangle to bin, e.g.
+        ``((cos_theta_max, 1), (0, 2 pi))`` for a narrow cone so that its
+        edge is a bin edge. Samples in the domain but outside ``bounds`` form
+        one extra cell with expected count ``n (1 - integral over bounds)``.
+    significance : float
+        Family-wise significance (probability of rejecting a correct pair).
+    test_count : int
+        Number of tests in the family: the per-test significance is
+        ``sidak_significance(significance, test_count)``.
+    min_expected : float
+        Cells with a smaller expected count are pooled (Mitsuba uses 5).
+    normalization_atol : float
+        With full bounds, the pdf must integrate to 1 within this tolerance;
+        for a sampler reporting failures, to at most ``1 + normalization_atol``
+        and to the valid fraction (binomial test). ``inf`` disables these
+        sanity checks, leaving the statistic alone.
+
+    Returns
+    -------
+    Chi2Result
+
+    Notes
+    -----
+    Sanity checks come first and fail the test outright (``pvalue = 0``):
+    non-finite valid samples, valid samples outside the domain, a pdf that
+    is negative, NaN or infinite at a quadrature node, a pdf whose integral
+    ``I`` is wrong, and samples in a cell where the pdf integrates to 0.
+    ``I`` is wrong when it differs from 1 by more than
+    ``normalization_atol`` (plus the quadrature's own error); for a sampler
+    reporting failures (Mitsuba's semantics: failed samples are dropped, the
+    pdf integrates to the probability of a valid sample) when it exceeds 1,
+    or when the number of valid samples ``V`` is implausible under
+    ``V ~ Binomial(n, I)`` (two-sided exact binomial test). That catches a
+    pdf that ignores the failures (normalised to 1 over the valid region)
+    and a sampler failing more or less often than its pdf allows. The
+    binomial test and the chi-square test then run at ``1 - (1 - a)^(1/2)``
+    each, so that ``a``, the Sidak-corrected significance, stays the
+    probability of rejecting a correct sampler.
+
+    The expected count of a cell is ``n`` times the integral of the pdf over
+    it, computed with q-point Gauss-Legendre per axis (nodes interior to the
+    cell, so a support boundary on a cell edge is exact and a pole or
+    horizon singularity is never evaluated). ``q`` doubles from 4, in the
+    cells still changing only, until the change in the expected counts,
+    ``delta``, could move the statistic by less than a tenth of its standard
+    deviation, ``sum(delta^2 / E) <= 0.1 sqrt(2 cells)``, and the integral by
+    less than ``normalization_atol / 10`` (and a tenth of the binomial
+    standard error of the valid fraction), or the node budget (4M) is spent
+    (then a warning if the statistic could be affected). The normalisation
+    checks allow for the remaining quadrature error ``sum |delta| / n``.
+
+    Failed samples and samples outside ``bounds`` form one extra cell with
+    expected count ``n (1 - I)`` (the multinomial has one more outcome), so
+    that observed and expected totals agree. Cells with expected count below
+    ``min_expected`` are merged, smallest first, into one pooled cell (grown
+    until it reaches ``min_expected``); ``T = sum (O - E)^2 / E`` over the
+    remaining cells is compared with a chi-square distribution with
+    ``cells - 1`` degrees of freedom.
+
+    References
+    ----------
+    .. [1] W. Jakob et al., Mitsuba 3 renderer, ``mitsuba/python/chi2.py``
+       (the ChiSquareTest design: pooling, Sidak correction, sanity checks,
+       invalid samples dropped from the histogram).
+    .. [2] K. Pearson, "On the criterion that a given system of deviations
+       from the probable ...", Philosophical Magazine 50(302), 1900.
+
+    Examples
+    --------
+    >>> from mcvar import warps
+    >>> r = chi2_test(warps.square_to_cosine_hemisphere,
+    ...               warps.square_to_cosine_hemisphere_pdf, 'hemisphere',
+    ...               n=100_000, rng=20240601)
+    >>> r.passed
+    True
+
+    A sampler whose samples may fail: uniform directions on the sphere,
+    those below the horizon failing; the valid ones have density
+    ``1 / (4 pi)`` on the hemisphere, which integrates to 1/2.
+
+    >>> def half(u):
+    ...     d = warps.square_to_uniform_sphere(u)
+    ...     return d, d[:, 1] >= 0.0
+    >>> r = chi2_test(half, lambda d: np.full(len(d), 1 / (4 * np.pi)),
+    ...               'hemisphere', n=100_000, rng=20240601)
+    >>> r.passed, round(r.pdf_integral, 6)
+    (True, 0.5)
+    """
+    if not callable(sample):
+        raise TypeError(f"sample must be callable; got {type(sample).__name__}")
+    if not callable(pdf):
+        raise TypeError(f"pdf must be callable; got {type(pdf).__name__}")
+    domain = check_choice(domain, "domain", DOMAINS)
+    n = check_count(n, "n")
+    batch_size = check_count(batch_size, "batch_size")
+    sig = sidak_significance(significance, test_count)
+    min_expected = check_positive(min_expected, "min_expected")
+    normalization_atol = check_positive(normalization_atol, "normalization_atol", allow_inf=True)
+    gen = as_rng(rng)
+    full_bounds, is_full = _bounds(domain, bounds)
+    if bins is None:
+        bins = _default_bins(n, domain)
+    if np.ndim(bins) != 1 or len(bins) != 2:
+        raise ValueError(f"bins must be a pair of ints; got {bins!r}")
+    bins = (check_count(bins[0], "bins[0]"), check_count(bins[1], "bins[1]"))
+    _, coords, _, dim = _DOMAIN_INFO[domain]
+    edges = tuple(np.linspace(full_bounds[k][0], full_bounds[k][1], bins[k] + 1) for k in range(2))
+    empty = np.zeros(bins)
+
+    # --- samples -----------------------------------------------------------
+    observed = np.zeros(bins[0] * bins[1], dtype=np.int64)
+    outside = failed = 0
+    reports_valid = False
+    for start in range(0, n, batch_size):
+        m = min(batch_size, n - start)
+        x, valid = _sample_points(sample, gen.random((m, 2)), dim)
+        if valid is not None:
+            reports_valid = True
+            x = x[valid]
+            failed += m - x.shape[0]
+        finite = np.all(np.isfinite(x), axis=1)
+        if not np.all(finite):
+            return _fail(f"{int((~finite).sum())} of {m} samples are NaN or Inf"
+                         + (" (and marked valid)" if valid is not None else ""), sig=sig, obs=empty,
+                         exp=empty, edges=edges, coords=coords, domain=domain, n=n)
+        c0, c1, ok = _to_params(x, domain)
+        if not np.all(ok):
+            hint = ("" if valid is not None else
+                    "; a sampler whose samples may fail returns (points, valid)")
+            return _fail(f"{int((~ok).sum())} of {m} samples lie outside the {domain} domain{hint}",
+                         sig=sig, obs=empty, exp=empty, edges=edges, coords=coords, domain=domain, n=n)
+        (lo0, hi0), (lo1, hi1) = full_bounds
+        inb = (c0 >= lo0) & (c0 <= hi0) & (c1 >= lo1) & (c1 <= hi1)
+        outside += int((~inb).sum())
+        i0 = np.minimum(((c0[inb] - lo0) / (hi0 - lo0) * bins[0]).astype(np.int64), bins[0] - 1)
+        i1 = np.minimum(((c1[inb] - lo1) / (hi1 - lo1) * bins[1]).astype(np.int64), bins[1] - 1)
+        observed += np.bincount(i0 * bins[1] + i1, minlength=bins[0] * bins[1])
+    observed = observed.reshape(bins).astype(np.float64)
+    n_valid = n - failed
+
+    # --- expected counts -----------------------------------------------------
+    int_tol = 0.1 * normalization_atol if np.isfinite(normalization_atol) else np.inf
+    binomial = reports_valid and is_full and np.isfinite(normalization_atol)
+    if binomial:  # resolve the integral well below the valid fraction's standard error
+        f = n_valid / n
+        int_tol = min(int_tol, 0.1 * np.sqrt(max(f * (1.0 - f), 1.0 / n) / n))
+    expected, ierr, int_err, problem = _expected_counts(pdf, domain, edges, n, int_tol)
+    info = dict(sig=sig, obs=observed, edges=edges, coords=coords, domain=domain, n=n,
+                outside=outside, failed=failed)
+    if problem is not None:
+        return _fail(problem, exp=empty, **info)
+    integral = float(expected.sum() / n)
+    info.update(exp=expected, integral=integral)
+    slack = normalization_atol + int_err
+    if is_full and not reports_valid and not abs(integral - 1.0) <= slack:
+        return _fail(f"pdf integrates to {integral:.6g} over the {domain}, not 1 "
+                     f"(tolerance {normalization_atol:g} + quadrature error {int_err:.2g})", **info)
+    if not integral <= 1.0 + slack:
+        where = f"over the {domain}" if is_full else "over bounds alone"
+        return _fail(f"pdf integrates to {integral:.6g} > 1 {where}", **info)
+    valid_p = float("nan")
+    if binomial:
+        sig = sidak_significance(sig, 2)
+        info["sig"] = sig
+        valid_p = _valid_fraction_pvalue(n_valid, n, integral, int_err)
+        if not valid_p > sig:
+            return _fail(f"{n_valid} of {n} samples are valid (fraction {n_valid / n:.6g}) but the "
+                         f"pdf integrates to {integral:.6g}: binomial p = {valid_p:.3g} <= {sig:.3g}; "
+                         "the pdf must integrate to the probability of a valid sample",
+                         valid_p=valid_p, **info)
+
+    # --- pooling and statistic ---------------------------------------------
+    obs = observed.ravel()
+    exp = expected.ravel()
+    rest = outside + failed
+    if not is_full or reports_valid:
+        obs = np.append(obs, rest)
+        exp = np.append(exp, max(0.0, n * (1.0 - integral)))
+    zero = exp <= 0.0
+    if np.any(obs[zero] > 0):
+        k = int(obs[zero].sum())
+        what = ("samples failed or fell outside bounds although the pdf integrates to 1"
+                if zero[-1] and obs[-1] > 0 and exp.size > observed.size
+                else "samples fell in cells where the pdf integrates to 0")
+        return _fail(f"{k} {what}", valid_p=valid_p, **info)
+    obs, exp = obs[~zero], exp[~zero]
+    order = np.argsort(exp, kind="stable")
+    obs, exp = obs[order], exp[order]
+    cum = np.cumsum(exp)
+    small = int(np.searchsorted(exp, min_expected, side="left"))  # cells with E < min_expected
+    if small > 0:
+        # grow the pool to at least min_expected
+        k = max(small, int(np.searchsorted(cum, min_expected, side="left")) + 1)
+        k = min(k, exp.size)
+        obs = np.append(obs[k:], obs[:k].sum())
+        exp = np.append(exp[k:], exp[:k].sum())
+    dof = int(exp.size - 1)
+    if dof < 1:
+        raise ValueError(f"n = {n} is too small for {bins} bins: fewer than 2 cells reach the "
+                         f"expected count {min_expected}")
+    stat = float(np.sum((obs - exp) ** 2 / exp))
+    pval = float(stats.chi2.sf(stat, dof))
+    passed = pval > sig
+    msg = (f"chi-square {stat:.4g} on {dof} dof, p = {pval:.3g} "
+           f"{'>' if passed else '<='} significance {sig:.3g}: "
+           f"{'accepted' if passed else 'rejected'}")
+    if reports_valid:
+        msg += (f"; {failed} of {n} samples failed, valid fraction {n_valid / n:.6g} vs pdf "
+                f"integral {integral:.6g}" + (f" (binomial p = {valid_p:.3g})" if binomial else ""))
+    return Chi2Result(statistic=stat, dof=dof, pvalue=pval, significance=sig, passed=passed,
+                      message=msg, observed=observed, expected=expected, edges=edges,
+                      coordinates=coords, domain=domain, n=n, pdf_integral=integral,
+                      integration_error=ierr, outside_bounds=outside, failed=failed,
+                      valid_pvalue=valid_p)
+
+
+# --------------------------------------------------------------------------
+# BSDF adapter
+# --------------------------------------------------------------------------
+
+def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
+                   significance: float = 1e-3, test_count: int = 1, min_expected: float = 5.0,
+                   normalization_atol: float = 1e-3, batch_size: int = 1_000_000) -> Chi2Result:
+    """Chi-square test of a BSDF's ``sample`` against its ``pdf`` at a fixed ``wo``.
+
+    Parameters
+    ----------
+    bsdf : object with ``sample(wo, u)`` and ``pdf(wo, wi)``
+        The BSDF protocol of :class:`mcvar.testing.BSDFLike` (e.g. any
+        :mod:`mcvar.bsdf` model). A mixed model (``has_delta`` true,
+        ``is_delta`` false) must accept ``sample(..., return_delta=True)``.
+    wo : array_like, shape (3,)
+        The outgoing unit direction, local space (normal +y). For a
+        reflection model it must lie above the horizon (``wo[1] > 0``).
+    n, rng, bins, significance, test_count, min_expected, normalization_atol, batch_size
+        As in :func:`chi2_test`; ``n`` counts every sample, failed and delta
+        ones included.
+
+    Returns
+    -------
+    Chi2Result
+        ``failed`` counts failed samples and ``delta`` delta-lobe samples;
+        ``pdf_integral`` is the non-delta pdf's integral, which must match
+        the fraction of samples that are neither.
+
+    Raises
+    ------
+    ValueError
+        For a purely delta BSDF (``is_delta``: its pdf is discrete, there is
+        no density to test), a ``wo`` that is not a unit vector, or a
+        reflection model's ``wo`` at or below the horizon (every sample
+        fails there).
+
+    Notes
+    -----
+    The domain is the sphere for a transmissive BSDF (attribute
+    ``transmissive``) and the upper hemisphere otherwise. A sample is left
+    out of the histogram when it failed, i.e. ``sample`` reported pdf 0
+    (:mod:`mcvar.bsdf`'s contract) or weight 0 for a direction below the
+    horizon of a reflection model (docs/conventions.md: a zero weight means
+    a failed sample), and when it came from a Dirac-delta lobe (the
+    ``return_delta`` mask: its pdf is a discrete probability, not a
+    density). The non-delta ``pdf`` then integrates to
+    ``1 - P(delta) - P(failure)``, which :func:`chi2_test` checks against
+    the observed fraction of valid samples (binomial test), next to the
+    chi-square statistic of the valid samples' histogram. So a smooth
+    :class:`mcvar.bsdf.Plastic` is tested on its diffuse part, and a delta
+    lobe chosen with the wrong probability shows up as a valid fraction
+    the pdf does not account for.
+
+    A non-finite or negative pdf reported by ``sample`` for a non-delta
+    sample fails the test outright.
+
+    Examples
+    --------
+    >>> from mcvar.bsdf import Microfacet
+    >>> wo = np.array([0.6, 0.8, 0.0])
+    >>> r = bsdf_chi2_test(Microfacet(0.3), wo, n=100_000, rng=20240601)
+    >>> r.passed, r.failed > 0
+    (True, True)
+    """
+    for meth in ("pdf", "sample"):
+        if not callable(getattr(bsdf, meth, None)):
+            raise TypeError(f"bsdf must have a callable {meth}(...); got {type(bsdf).__name__}")
+    if bool(getattr(bsdf, "is_delta", False)):
+        raise ValueError(f"bsdf must have a non-delta part: {type(bsdf).__name__} is a Dirac delta "
+                         "(is_delta), its pdf is a discrete probability with no density to test")
+    wo = as_directions(wo, "wo")
+    if wo.shape != (3,):
+        raise ValueError(f"wo must be one direction, shape (3,); got shape {wo.shape}")
+    if not abs(float(np.dot(wo, wo)) - 1.0) <= 1e-9:
+        raise ValueError(f"wo must be a unit vector; got length {np.linalg.norm(wo):.6g}")
+    transmissive = bool(getattr(bsdf, "transmissive", False))
+    if not transmissive and not wo[1] > 0.0:
+        raise ValueError(f"wo must lie above the horizon (wo[1] > 0) for a reflection BSDF, where "
+                         f"every sample fails otherwise; got wo[1] = {wo[1]:.6g}")
+    mixed = bool(getattr(bsdf, "has_delta", False))
+    domain = "sphere" if transmissive else "hemisphere"
+    tally = {"delta": 0, "failed": 0, "problem": None}
+
+    def sample(u):
+        wo_b = np.broadcast_to(wo, (u.shape[0], 3))
+        out = bsdf.sample(wo_b, u, return_delta=True) if mixed else bsdf.sample(wo_b, u)
+        wi = np.array(out[0], dtype=np.float64)
+        weight = np.asarray(out[1], dtype=np.float64).reshape(u.shape[0], -1)
+        p = np.asarray(out[2], dtype=np.float64).reshape(u.shape[0])
+        delta = np.asarray(out[3], dtype=bool).reshape(u.shape[0]) if mixed else np.zeros(u.shape[0], bool)
+        bad = ~delta & ~(np.isfinite(p) & (p >= 0.0))
+        if np.any(bad) and tally["problem"] is None:
+            tally["problem"] = (f"sample() reported a NaN, Inf or negative pdf for {int(bad.sum())} "
+                                f"of {u.shape[0]} non-delta samples")
+            wi[bad] = np.nan          # makes chi2_test stop at once
+        failed = ~delta & ~bad & ((p <= 0.0) | (~np.any(weight > 0.0, axis=1)
+                                                & (wi[:, 1] < 0.0) & (not transmissive)))
+        tally["delta"] += int(delta.sum())
+        tally["failed"] += int(failed.sum())
+        return wi, ~(delta | failed)
+
+    def pdf(x):
+        return bsdf.pdf(np.broadcast_to(wo, x.shape), x)
+
+    r = chi2_test(sample, pdf, domain, n=n, rng=rng, bins=bins, significance=significance,
+                  test_count=test_count, min_expected=min_expected,
+                  normalization_atol=normalization_atol, batch_size=batch_size)
+    msg = r.message
+    if tally["problem"] is not None:
+        msg = tally["problem"]
+    elif tally["delta"]:
+        msg += (f" ({tally['delta']} of these, {tally['delta'] / n:.4g}, are delta-lobe samples, "
+                "excluded by design)")
+    return replace(r, message=msg, failed=tally["failed"], delta=tally["delta"])
