@@ -34,20 +34,8 @@ import numpy as np
 from scipy import integrate, stats
 
 from .._validation import as_array, as_directions, as_rng, check_count, check_choice, check_positive
-from ._chi2 import (
-    _DOMAIN_INFO,
-    DOMAINS,
-    Chi2Result,
-    Domain,
-    _bounds,
-    _eval_pdf,
-    _from_params,
-    _sample_points,
-    _to_params,
-    bsdf_chi2_test,
-    chi2_test,
-    sidak_significance,
-)
+from ._chi2 import Chi2Result, _sample_points, bsdf_chi2_test, chi2_test, sidak_significance
+from ._domains import _DOMAIN_INFO, DOMAINS, Domain, _bounds, _eval_pdf, _from_params, _to_params
 
 __all__ = [
     "DOMAINS",
