@@ -49,10 +49,12 @@ class Hit:
 class _Block:
     """One triangle group's stacked maps (rows: b1 of all, b2 of all, h of all)."""
 
-    __slots__ = ("idx", "k", "mat_o", "mat_d", "box")
+    __slots__ = ("idx", "k", "mat_o", "mat_d", "box", "bits", "col")
 
     def __init__(self, idx, k, mat_o, mat_d, box):
         self.idx, self.k, self.mat_o, self.mat_d, self.box = idx, k, mat_o, mat_d, box
+        self.bits = max(1, (k - 1).bit_length())      # bits of a triangle index within the group
+        self.col = np.arange(k, dtype=np.int64)[:, None]
 
 
 class Tracer:
@@ -280,6 +282,19 @@ class Tracer:
         if blk.k == 1:
             best = np.where(ok[0], t[0], np.inf)
             prim = np.full(best.shape, blk.idx[0])
+        elif self.dtype == np.float32:
+            # argmin over the short axis 0 is slow (NumPy copies to make it
+            # the last axis). Non-negative float32 values order like their
+            # int32 bit patterns, so (bits << b) | j packs distance and
+            # triangle into one int64 whose plain min gives both, exactly
+            # (ties: the lower j, like argmin); about 2.3x faster here.
+            np.copyto(t, np.inf, where=~ok)
+            key = t.view(np.int32).astype(np.int64)
+            key <<= blk.bits
+            key |= blk.col
+            low = key.min(axis=0)
+            best = (low >> blk.bits).astype(np.int32).view(np.float32)
+            prim = np.take(blk.idx, low & ((1 << blk.bits) - 1))
         else:
             t = np.where(ok, t, np.inf)
             j = np.argmin(t, axis=0)
