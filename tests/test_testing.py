@@ -14,9 +14,9 @@ from scipy import stats
 
 from mcvar import warps as w
 from mcvar.geometry import Frame
-from mcvar.testing import (Chi2Result, check_extremes, check_inverse, check_pdf_normalized,
-                           check_unbiased, check_weight_consistency, chi2_test, measure_power,
-                           sidak_significance)
+from mcvar.testing import (Chi2Result, bsdf_chi2_test, check_extremes, check_inverse,
+                           check_pdf_normalized, check_unbiased, check_weight_consistency, chi2_test,
+                           measure_power, sidak_significance)
 from mcvar.testing import mutants
 
 SEED = 7_341_905_221
@@ -78,6 +78,55 @@ class Phong:
         ok = wi[:, 1] > 0
         weight = np.where(ok, self.rho * (self.k + 2) / (self.k + 1) * np.abs(wi[:, 1]), 0.0)
         return wi, weight, pdf
+
+
+class CoatedDiffuse:
+    """A mixed model: a mirror coat chosen with probability ``p_spec`` (a delta
+    lobe, discrete pdf ``p_spec``) over a diffuse base sampled with the
+    remaining probability, so ``pdf = (1 - p_spec) cos / pi`` integrates to
+    ``1 - p_spec``. ``p_pdf`` is the coat probability ``pdf()`` assumes (a
+    bug when it differs from ``p_spec``)."""
+
+    is_delta, has_delta = False, True
+
+    def __init__(self, p_spec=0.3, albedo=0.6, p_pdf=None):
+        self.p_spec, self.albedo = p_spec, albedo
+        self.p_pdf = p_spec if p_pdf is None else p_pdf
+
+    def eval(self, wo, wi):
+        up = (wo[:, 1] > 0) & (wi[:, 1] > 0)
+        return np.where(up[:, None], (1 - self.p_spec) * self.albedo / np.pi, 0.0) * np.ones(3)
+
+    def pdf(self, wo, wi):
+        up = (wo[:, 1] > 0) & (wi[:, 1] > 0)
+        return np.where(up, (1 - self.p_pdf) * wi[:, 1] / np.pi, 0.0)
+
+    def sample(self, wo, u, *, return_delta=False):
+        spec = u[:, 0] < self.p_spec
+        ud = np.column_stack([(u[:, 0] - self.p_spec) / (1 - self.p_spec), u[:, 1]]).clip(0, 1)
+        wi = np.where(spec[:, None], wo * np.array([-1.0, 1.0, -1.0]), w.square_to_cosine_hemisphere(ud))
+        pdf = np.where(spec, self.p_spec, (1 - self.p_spec) * wi[:, 1] / np.pi)
+        weight = np.where(spec[:, None], 1.0, self.albedo) * np.ones(3)
+        return (wi, weight, pdf, spec) if return_delta else (wi, weight, pdf)
+
+
+class DiffuseTransmitter:
+    """Reflects or transmits (coin flip) into a cosine lobe: a transmissive
+    non-delta BSDF, pdf |cos| / (2 pi) over the whole sphere."""
+
+    is_delta, transmissive = False, True
+
+    def eval(self, wo, wi):
+        return np.full((len(wo), 3), 0.5 / (2 * np.pi))
+
+    def pdf(self, wo, wi):
+        return np.abs(wi[:, 1]) / (2 * np.pi)
+
+    def sample(self, wo, u):
+        side = np.where(u[:, 0] < 0.5, 1.0, -1.0) * np.sign(wo[:, 1])
+        ud = np.column_stack([np.where(u[:, 0] < 0.5, 2 * u[:, 0], 2 * u[:, 0] - 1), u[:, 1]]).clip(0, 1)
+        wi = w.square_to_cosine_hemisphere(ud) * np.stack([np.ones_like(side), side, np.ones_like(side)], -1)
+        return wi, np.full((len(wo), 3), 0.5), self.pdf(wo, wi)
 
 
 class Mirror:
@@ -218,6 +267,106 @@ def test_chi2_bad_arguments():
         chi2_test(s, p, "hemisphere", n=100, significance=-1)
 
 
+# ------------------------------------------------------------ samplers that fail
+
+# The tilted cosine lobe of mcvar.testing.mutants: samples below the geometric
+# horizon fail; P(valid) = (1 + cos 45 deg) / 2 (Malley's method, see mutants).
+LOBE = mutants.get("pdf_ignores_failures")
+P_VALID = (1 + np.cos(np.pi / 4)) / 2
+
+
+def test_chi2_sampler_with_failures_passes():
+    r = chi2_test(LOBE.correct_sample, LOBE.correct_pdf, "hemisphere", n=100_000, rng=SEED,
+                  significance=SIG)
+    assert r.passed, r.message
+    assert r.pdf_integral == pytest.approx(P_VALID, abs=1e-6)
+    # failures are Binomial(n, 1 - P_VALID): within 5 standard deviations
+    assert abs(r.failed - 1e5 * (1 - P_VALID)) <= 5 * np.sqrt(1e5 * P_VALID * (1 - P_VALID))
+    assert r.observed.sum() == 100_000 - r.failed and r.valid_pvalue > r.significance
+    # the binomial test and the statistic share the Sidak-corrected significance
+    assert r.significance == pytest.approx(sidak_significance(SIG, 2), rel=1e-12)
+    assert "failed" in r.message
+    # (points, valid) with every sample valid behaves like the plain sampler
+    plain = chi2_test(w.square_to_cosine_hemisphere, w.square_to_cosine_hemisphere_pdf, "hemisphere",
+                      n=20_000, rng=SEED)
+    masked = chi2_test(lambda u: (w.square_to_cosine_hemisphere(u), np.ones(len(u), bool)),
+                       w.square_to_cosine_hemisphere_pdf, "hemisphere", n=20_000, rng=SEED)
+    np.testing.assert_array_equal(plain.observed, masked.observed)
+    assert masked.passed and masked.failed == 0 and masked.valid_pvalue == 1.0
+
+
+def test_chi2_pvalues_are_uniform_with_failures():
+    # the failure cell and the dof are right: p-values U(0, 1) under H0 (KS, 40 runs)
+    streams = np.random.SeedSequence(SEED + 1).spawn(40)
+    p = [chi2_test(LOBE.correct_sample, LOBE.correct_pdf, "hemisphere", n=5000, rng=s).pvalue
+         for s in streams]
+    assert stats.kstest(p, "uniform").pvalue > SIG
+
+
+def test_chi2_rejects_pdf_ignoring_failures():
+    # pdf normalised to 1 over the valid region: the valid fraction 0.854 says otherwise
+    r = chi2_test(LOBE.sample, LOBE.pdf, "hemisphere", n=2000, rng=SEED)
+    assert not r.passed and r.pvalue == 0.0 and r.valid_pvalue < 1e-10
+    assert "must integrate to the probability of a valid sample" in r.message
+    assert r.pdf_integral == pytest.approx(1.0, abs=1e-3)
+    # with the sanity checks off, the failure cell of the statistic still sees it
+    # (expected ~ n (1 - 1) = 0 failures, 288 observed)
+    r = chi2_test(LOBE.sample, LOBE.pdf, "hemisphere", n=2000, rng=SEED, normalization_atol=np.inf)
+    assert not r.passed and np.isfinite(r.statistic) and np.isnan(r.valid_pvalue)
+    # a pdf integrating to exactly 1 leaves the failures a cell of expected count 0
+    r = chi2_test(lambda u: (w.square_to_cosine_hemisphere(u), u[:, 0] < 0.9),
+                  w.square_to_cosine_hemisphere_pdf, "hemisphere", n=2000, rng=SEED,
+                  normalization_atol=np.inf)
+    assert not r.passed and "failed or fell outside bounds although the pdf integrates to 1" in r.message
+
+
+@pytest.mark.parametrize("factor", [0.95, 1.05])
+def test_chi2_rejects_failure_fraction_disagreeing_with_pdf_mass(factor):
+    # pdf mass 0.811 or 0.896 against a valid fraction of 0.854 (both < 1)
+    r = chi2_test(LOBE.correct_sample, lambda v: factor * LOBE.correct_pdf(v), "hemisphere",
+                  n=20_000, rng=SEED)
+    assert not r.passed and "binomial p" in r.message
+    # and a sampler failing where its pdf says it should not (a grazing cut-off)
+    cut = mutants.get("failure_cutoff_not_in_pdf")
+    r = chi2_test(cut.sample, cut.pdf, "hemisphere", n=20_000, rng=SEED)
+    assert not r.passed
+
+
+def test_chi2_with_failures_still_rejects_pdf_above_one():
+    r = chi2_test(LOBE.correct_sample, lambda v: 1.3 * LOBE.correct_pdf(v), "hemisphere", n=1000, rng=SEED)
+    assert not r.passed and "> 1 over the hemisphere" in r.message
+
+
+def test_chi2_failed_points_are_ignored_valid_ones_checked():
+    def nan_failures(u):
+        d, ok = LOBE.correct_sample(u)
+        d[~ok] = np.nan                     # failed samples may carry anything
+        return d, ok
+    assert chi2_test(nan_failures, LOBE.correct_pdf, "hemisphere", n=20_000, rng=SEED,
+                     significance=SIG).passed
+
+    def below_but_valid(u):
+        d, ok = LOBE.correct_sample(u)
+        return d, np.ones(len(u), bool)     # failures not reported
+    r = chi2_test(below_but_valid, LOBE.correct_pdf, "hemisphere", n=1000, rng=SEED)
+    assert not r.passed and "outside the hemisphere domain" in r.message
+    r = chi2_test(lambda u: LOBE.correct_sample(u)[0], LOBE.correct_pdf, "hemisphere", n=1000, rng=SEED)
+    assert not r.passed and "returns (points, valid)" in r.message
+    with pytest.raises(ValueError, match=r"valid mask of sample\(u\) must have shape \(100,\)"):
+        chi2_test(lambda u: (LOBE.correct_sample(u)[0], np.ones(3, bool)), LOBE.correct_pdf,
+                  "hemisphere", n=100)
+    # boundaries: check_extremes judges the valid points only
+    assert check_extremes(LOBE.correct_sample, LOBE.correct_pdf, "hemisphere").passed
+
+
+def test_chi2_failures_with_bounds_join_the_rest_cell():
+    # binned only near the pole: failures and samples outside bounds share one cell
+    r = chi2_test(LOBE.correct_sample, LOBE.correct_pdf, "hemisphere", n=50_000, rng=SEED,
+                  bounds=((0.5, 1.0), (0.0, TWO_PI)), significance=SIG)
+    assert r.passed, r.message
+    assert r.failed > 0 and r.outside_bounds > 0 and np.isnan(r.valid_pvalue)
+
+
 # ------------------------------------------------------------ normalisation
 
 def test_check_pdf_normalized():
@@ -235,7 +384,8 @@ def test_check_pdf_normalized():
 
 # ------------------------------------------------------------ weight consistency
 
-@pytest.mark.parametrize("bsdf", [Diffuse(), Phong(), Phong(k=1000.0)], ids=["diffuse", "phong", "phong1000"])
+@pytest.mark.parametrize("bsdf", [Diffuse(), Phong(), Phong(k=1000.0), CoatedDiffuse(), DiffuseTransmitter()],
+                         ids=["diffuse", "phong", "phong1000", "coated", "transmitter"])
 def test_weight_consistency_passes_correct_bsdfs(bsdf):
     r = check_weight_consistency(bsdf, WO, n=5000, rng=SEED)
     assert r.passed, r.message
@@ -268,6 +418,81 @@ def test_weight_consistency_delta_and_broken_outputs():
         check_weight_consistency(object(), WO)
     with pytest.raises(ValueError, match=r"wo must have shape \(3,\) or \(10, 3\)"):
         check_weight_consistency(Diffuse(), np.ones((3, 3)), n=10)
+
+
+# ------------------------------------------------------------ bsdf_chi2_test
+
+@pytest.mark.parametrize("bsdf,wo", [
+    (Diffuse(), WO),
+    (Phong(), WO),                                  # failures: weight 0 below the horizon
+    (Phong(k=3.0), np.array([0.96, 0.28, 0.0])),    # near grazing: over a third fail
+    (CoatedDiffuse(), WO),                          # mixed: delta coat excluded
+    (DiffuseTransmitter(), -WO),                    # transmissive: sphere, wo inside
+], ids=["diffuse", "phong", "phong-grazing", "coated", "transmitter"])
+def test_bsdf_chi2_passes_correct_bsdfs(bsdf, wo):
+    r = bsdf_chi2_test(bsdf, wo, n=100_000, rng=SEED, significance=SIG)
+    assert r.passed, r.message
+    assert r.domain == ("sphere" if getattr(bsdf, "transmissive", False) else "hemisphere")
+    assert r.observed.sum() == r.n - r.failed - r.delta
+    if isinstance(bsdf, CoatedDiffuse):       # delta count ~ Binomial(n, p_spec), 5 sigma
+        assert abs(r.delta - 1e5 * 0.3) <= 5 * np.sqrt(1e5 * 0.3 * 0.7)
+        assert r.failed == 0 and r.pdf_integral == pytest.approx(0.7, abs=1e-9)
+        assert "delta-lobe samples" in r.message
+    if isinstance(bsdf, Phong):
+        assert r.failed > 0 and r.pdf_integral < 1
+
+
+def test_bsdf_chi2_rejects_delta_probability_disagreeing_with_pdf():
+    # the coat is chosen 30 % of the time but pdf() assumes 25 %: delta fraction
+    # + pdf integral = 0.3 + 0.75 > 1
+    r = bsdf_chi2_test(CoatedDiffuse(p_pdf=0.25), WO, n=20_000, rng=SEED)
+    assert not r.passed and "binomial p" in r.message
+
+
+def test_bsdf_chi2_rejects_broken_bsdfs():
+    # a pdf 5 % too large, consistently in pdf() and sample(): weights stay
+    # eval cos / pdf, so only the chi-square test sees it
+    broken = mutants.pdf_scaled(Phong(), 1.05)
+    assert check_weight_consistency(broken, WO, n=1000, rng=SEED).passed
+    power = measure_power(lambda n, rng: bsdf_chi2_test(broken, WO, n=n, rng=rng),
+                          [1024 * 4 ** j for j in range(5)], replicates=5, target=1.0, rng=SEED)
+    assert power.n_reject is not None
+    # a lobe sampled in a frame with a flipped tangent (wo off the plane x = 0)
+    flipped = mutants.sample_tangent_flipped(Phong())
+    power = measure_power(lambda n, rng: bsdf_chi2_test(flipped, WO, n=n, rng=rng),
+                          [64 * 4 ** j for j in range(5)], replicates=5, target=1.0, rng=SEED)
+    assert power.n_reject is not None
+    # the same flip is invisible for a diffuse lobe (same distribution): not a false alarm
+    assert bsdf_chi2_test(mutants.sample_tangent_flipped(Diffuse()), WO, n=50_000, rng=SEED,
+                          significance=SIG).passed
+    # wrappers forward the delta mask of mixed models
+    coated = mutants.pdf_scaled(CoatedDiffuse(), 1.1)
+    assert coated.has_delta and len(coated.sample(np.tile(WO, (4, 1)), np.full((4, 2), 0.5),
+                                                  return_delta=True)) == 4
+    assert not bsdf_chi2_test(coated, WO, n=20_000, rng=SEED).passed
+
+
+def test_bsdf_chi2_reports_bad_sample_pdf():
+    class NaNPdf(Phong):
+        def sample(self, wo, u):
+            wi, wt, p = super().sample(wo, u)
+            p[:3] = np.nan
+            return wi, wt, p
+    r = bsdf_chi2_test(NaNPdf(), WO, n=1000, rng=SEED)
+    assert not r.passed and "NaN, Inf or negative pdf for 3 of 1000" in r.message
+
+
+def test_bsdf_chi2_bad_arguments():
+    with pytest.raises(ValueError, match="bsdf must have a non-delta part"):
+        bsdf_chi2_test(Mirror(), WO, n=100)
+    with pytest.raises(ValueError, match=r"wo must lie above the horizon \(wo\[1\] > 0\)"):
+        bsdf_chi2_test(Diffuse(), np.array([1.0, 0.0, 0.0]), n=100)
+    with pytest.raises(ValueError, match="wo must be a unit vector"):
+        bsdf_chi2_test(Diffuse(), np.array([0.0, 2.0, 0.0]), n=100)
+    with pytest.raises(ValueError, match=r"wo must be one direction, shape \(3,\)"):
+        bsdf_chi2_test(Diffuse(), np.tile(WO, (2, 1)), n=100)
+    with pytest.raises(TypeError, match="bsdf must have a callable pdf"):
+        bsdf_chi2_test(object(), WO, n=100)
 
 
 # ------------------------------------------------------------ inverse, extremes
@@ -318,7 +543,10 @@ def _estimate_cos2(sample, pdf, n, rng):
     """IS estimate of int_H cos^2(theta) d(omega) = 2 pi / 3 (not proportional to
     any mutant's pdf, so its variance is not zero)."""
     x = sample(rng.random((n, 2)))
-    y = x[:, 1] ** 2 / pdf(x)
+    valid = np.ones(n, bool)
+    if isinstance(x, tuple):            # (points, valid): a failed sample contributes 0
+        x, valid = x
+    y = np.where(valid, x[:, 1] ** 2 / np.where(valid, pdf(x), 1.0), 0.0)
     return y.mean(), y.std(ddof=1) / np.sqrt(n)
 
 
@@ -403,6 +631,8 @@ def test_mutant_registry():
         mutants.get("nope")
     with pytest.raises(TypeError, match="bsdf must have a callable"):
         mutants.weight_without_cos(object())
+    with pytest.raises(ValueError, match="factor must be finite and > 0"):
+        mutants.pdf_scaled(Diffuse(), -1.0)
 
 
 def test_measure_power_arguments():

@@ -3,8 +3,11 @@
 Each mutant reproduces a bug that physically based renderers have shipped:
 a pdf that does not match its sampler, a forgotten ``sin(theta)``
 Jacobian, a pdf off by a constant factor, an off-by-one exponent, ``u = 1.0``
-indexing past a table, ``0 * inf`` at the horizon, a wrong inverse, and BSDF
-sample weights that are not ``f cos / pdf``. The checks of
+indexing past a table, ``0 * inf`` at the horizon, a wrong inverse, a pdf
+that ignores the samples its sampler fails (or a sampler failing where its
+pdf says it should not), and BSDFs whose sample weights are not
+``f cos / pdf``, whose pdf is off by a factor, or whose samples are drawn in
+a mirrored frame. The checks of
 :mod:`mcvar.testing` must reject every one of them; ``tests/test_testing.py``
 proves it and measures how many samples each check needs (the table in
 ``docs/testing.md``).
@@ -23,6 +26,7 @@ import numpy as np
 
 from .. import warps
 from .._validation import as_unit_square, check_positive
+from ..geometry import Frame
 
 __all__ = [
     "Mutant",
@@ -31,6 +35,8 @@ __all__ = [
     "weight_without_cos",
     "weight_not_divided_by_pdf",
     "sample_pdf_scaled",
+    "pdf_scaled",
+    "sample_tangent_flipped",
 ]
 
 _PHONG_K = 20.0
@@ -150,6 +156,40 @@ def _ggx_pdf_without_cos(v):
     return np.where(v[:, 1] > 0.0, warps.square_to_ggx_pdf(v, _GGX_ALPHA) / c, 0.0)
 
 
+# A cosine lobe about a shading normal tilted by _TILT from the geometric
+# normal +y (bump mapping): samples below the geometric horizon fail. Malley's
+# method makes the failed set, in the lobe's projected disk, a half disk minus
+# a half ellipse with semi-axes (cos tilt, 1): P(valid) = (1 + cos tilt) / 2.
+_TILT = np.pi / 4
+_SHADING_NORMAL = np.array([np.sin(_TILT), np.cos(_TILT), 0.0])
+_P_VALID = 0.5 * (1.0 + np.cos(_TILT))
+_EPSILON = 0.05
+
+
+def _cos_shading(u):
+    """Cosine lobe about the tilted shading normal; ``(points, valid)``."""
+    d = Frame(_SHADING_NORMAL).to_world(warps.square_to_cosine_hemisphere(u))
+    return d, d[:, 1] > 0.0
+
+
+def _cos_shading_pdf(v):
+    """Density of the valid samples: cos(theta_s) / pi above the geometric
+    horizon, 0 below; it integrates to P(valid) = (1 + cos tilt) / 2."""
+    v = np.asarray(v, dtype=np.float64)
+    return np.where(v[:, 1] > 0.0, np.maximum(v @ _SHADING_NORMAL, 0.0) / np.pi, 0.0)
+
+
+def _cos_shading_pdf_renormalised(v):
+    """The failures ignored: the pdf renormalised to 1 over the valid region."""
+    return _cos_shading_pdf(v) / _P_VALID
+
+
+def _cos_shading_epsilon(u):
+    """Also fails samples with y < epsilon (a grazing cut-off the pdf does not know)."""
+    d, _ = _cos_shading(u)
+    return d, d[:, 1] > _EPSILON
+
+
 def _scaled(pdf, factor):
     return lambda v: factor * pdf(v)
 
@@ -223,6 +263,15 @@ MUTANTS: dict[str, Mutant] = {m.name: m for m in (
     Mutant("ggx_pdf_nan_at_horizon",
            "GGX pdf from the textbook tan^2 form: 0 * inf = NaN for a normal on the horizon",
            "hemisphere", _ggx_s, _ggx_pdf_textbook, ("extremes",), _ggx_s, _ggx_p),
+    Mutant("pdf_ignores_failures",
+           "cosine lobe about a shading normal tilted 45 degrees, samples below the geometric "
+           "horizon failing, with its pdf renormalised to 1 over the valid region (it must "
+           f"integrate to P(valid) = {_P_VALID:.4f})", "hemisphere", _cos_shading,
+           _cos_shading_pdf_renormalised, ("chi2", "unbiased"), _cos_shading, _cos_shading_pdf),
+    Mutant("failure_cutoff_not_in_pdf",
+           f"the same tilted cosine lobe failing every sample with y < {_EPSILON:g} (a grazing "
+           "cut-off) while its pdf still counts them", "hemisphere", _cos_shading_epsilon,
+           _cos_shading_pdf, ("chi2",), _cos_shading, _cos_shading_pdf),
     Mutant("cosine_wrong_inverse",
            "cosine hemisphere paired with the uniform hemisphere's inverse",
            "hemisphere", _cos_s, _cos_p, ("inverse",), _cos_s, _cos_p,
@@ -241,27 +290,34 @@ def get(name: str) -> Mutant:
 # ---- broken BSDFs: wrappers around any correct BSDF ------------------------
 
 class _Wrapped:
-    """A BSDF whose ``sample`` is altered; ``eval`` and ``pdf`` pass through."""
+    """A BSDF whose ``sample`` (and optionally ``pdf``) is altered; ``eval``
+    passes through, as do ``is_delta``, ``has_delta``, ``transmissive`` and
+    ``sample(..., return_delta=True)``."""
 
-    def __init__(self, bsdf, alter, description):
+    def __init__(self, bsdf, alter, description, pdf_factor=1.0):
         for meth in ("eval", "pdf", "sample"):
             if not callable(getattr(bsdf, meth, None)):
                 raise TypeError(f"bsdf must have a callable {meth}(...); got {type(bsdf).__name__}")
         self._bsdf = bsdf
         self._alter = alter
+        self._pdf_factor = pdf_factor
         self.description = description
         self.is_delta = bool(getattr(bsdf, "is_delta", False))
+        self.has_delta = bool(getattr(bsdf, "has_delta", self.is_delta))
+        self.transmissive = bool(getattr(bsdf, "transmissive", False))
 
     def eval(self, wo, wi):
         return self._bsdf.eval(wo, wi)
 
     def pdf(self, wo, wi):
-        return self._bsdf.pdf(wo, wi)
+        return self._pdf_factor * np.asarray(self._bsdf.pdf(wo, wi), dtype=np.float64)
 
-    def sample(self, wo, u):
-        wi, weight, pdf = self._bsdf.sample(wo, u)
-        return self._alter(np.asarray(wi), np.asarray(weight, dtype=np.float64),
-                           np.asarray(pdf, dtype=np.float64))
+    def sample(self, wo, u, *, return_delta=False):
+        out = self._bsdf.sample(wo, u, return_delta=True) if return_delta else self._bsdf.sample(wo, u)
+        wi, weight, pdf = self._alter(np.array(out[0], dtype=np.float64),
+                                      np.asarray(out[1], dtype=np.float64),
+                                      np.asarray(out[2], dtype=np.float64))
+        return (wi, weight, pdf, out[3]) if return_delta else (wi, weight, pdf)
 
     def __repr__(self):
         return f"<mutant BSDF: {self.description}>"
@@ -297,3 +353,30 @@ def sample_pdf_scaled(bsdf, factor=1.05):
     def alter(wi, weight, pdf):
         return wi, weight / factor, pdf * factor
     return _Wrapped(bsdf, alter, f"sample() reports {factor:g} x pdf()")
+
+
+def pdf_scaled(bsdf, factor=1.05):
+    """``bsdf`` whose pdf is ``factor`` times too large, consistently: both
+    ``pdf(wo, wi)`` and the pdf ``sample`` reports, with the weight divided
+    accordingly (a constant dropped from the pdf formula). Weights stay
+    ``eval |cos| / pdf``, so :func:`mcvar.testing.check_weight_consistency`
+    cannot see it; :func:`mcvar.testing.bsdf_chi2_test` can (the pdf no
+    longer integrates to the fraction of valid samples)."""
+    factor = check_positive(factor, "factor")
+
+    def alter(wi, weight, pdf):
+        return wi, weight / factor, pdf * factor
+    return _Wrapped(bsdf, alter, f"pdf() and sample() both {factor:g} x the true pdf",
+                    pdf_factor=factor)
+
+
+def sample_tangent_flipped(bsdf):
+    """``bsdf`` whose sampled ``wi`` is mirrored across the plane of the
+    normal and the bitangent (``x -> -x``: a shading frame with a flipped
+    tangent), weight and pdf unchanged. Invisible for lobes symmetric under
+    that mirror (a diffuse lobe, ``wo`` in the plane ``x = 0``); otherwise
+    :func:`mcvar.testing.bsdf_chi2_test` sees the lobe in the wrong place."""
+    def alter(wi, weight, pdf):
+        wi[:, 0] = -wi[:, 0]
+        return wi, weight, pdf
+    return _Wrapped(bsdf, alter, "wi sampled in a frame with a flipped tangent")
