@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 import time
+import uuid
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Literal
@@ -59,8 +60,10 @@ INTEGRATORS = ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf",
 #: MIS heuristics by name.
 HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
 _AOVS = ("albedo", "normal", "depth", "raster")
-#: Paths per spp batch when ``batch_spp`` is not given (bounds memory to ~100 MB).
-PATHS_PER_BATCH = 1 << 18
+#: Paths per spp batch when ``batch_spp`` is not given: big enough that per-bounce
+#: overhead is small, small enough that two processes do not fight over the
+#: shared cache and memory bandwidth (measured: 1.8x with 2 workers at 2^16, 1.4x at 2^18).
+PATHS_PER_BATCH = 1 << 16
 #: Russian roulette starts once a path has this many segments.
 RR_START_DEPTH = 3
 #: Safety cap on the number of segments under Russian roulette: a path
@@ -657,6 +660,32 @@ class _Job:
     max_depth: int | None
     heuristic: str
     precision: str
+    token: str = ""
+
+
+#: The tracer of the render in progress, by job token: built once per render
+#: (in the parent before worker processes fork, so they inherit it) instead of
+#: once per batch. Holds at most one entry.
+_TRACERS: dict = {}
+
+
+def _job_tracer(job: _Job) -> Tracer:
+    tracer = _TRACERS.get(job.token)
+    if tracer is None:
+        tracer = Tracer(job.scene, dtype=job.precision)
+        _TRACERS.clear()
+        _TRACERS[job.token] = tracer
+    return tracer
+
+
+def _pool_context():
+    """``fork`` where the platform has it: workers start in milliseconds and
+    inherit the tracer; elsewhere the platform default."""
+    import multiprocessing
+
+    if "fork" in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("fork")
+    return None
 
 
 def _render_batch(job: _Job, spp: int, rng):
@@ -664,7 +693,7 @@ def _render_batch(job: _Job, spp: int, rng):
     w, h = job.res
     n_pix = w * h
     scene = job.scene
-    tracer = Tracer(scene, dtype=job.precision)
+    tracer = _job_tracer(job)
     aov = job.integrator in _AOVS
     u = pixel_samples(job.sampler, n_pix, spp, dim=2 if aov else SAMPLER_DIM, rng=rng)
     u = u.reshape(n_pix * spp, -1)
@@ -794,7 +823,8 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
     n_pix = size[0] * size[1]
     sizes = _batch_sizes(spp, n_pix, batch_spp, sampler)
     streams = as_rng(rng).spawn(len(sizes))
-    job = _Job(scene, integrator, sampler, size, max_depth, heuristic, precision)
+    job = _Job(scene, integrator, sampler, size, max_depth, heuristic, precision, token=uuid.uuid4().hex)
+    _job_tracer(job)
 
     total = np.zeros((n_pix, 3))
     total_sq = np.zeros((n_pix, 3))
@@ -827,13 +857,14 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
             for k, (b, stream) in enumerate(zip(sizes, streams)):
                 collect(_render_batch(job, b, stream), k)
         else:
-            pool = ProcessPoolExecutor(max_workers=min(workers, len(sizes)))
+            pool = ProcessPoolExecutor(max_workers=min(workers, len(sizes)), mp_context=_pool_context())
             futures = [pool.submit(_render_batch, job, b, stream) for b, stream in zip(sizes, streams)]
             for k, fut in enumerate(futures):
                 collect(fut.result(), k)
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        _TRACERS.pop(job.token, None)
         if pool is not None:
             pool.shutdown(wait=not interrupted, cancel_futures=True)
         if bar is not None:
