@@ -139,7 +139,8 @@ class Tracer:
                         for g in (np.unique(groups) if n_tri else [])]
         # any-hit order: boxed groups first (they occlude most), then the rest, each boxed
         order = sorted(self._blocks, key=lambda b: b.box is None)
-        self._shadow_all = [self._make_block(b.idx, self.cull) for b in order]
+        self._shadow_all = self._stack_boxes([self._make_block(b.idx, True) for b in order])
+        self._boxed = self._stack_boxes([b for b in self._blocks if b.box is not None])
         self._shadow_cache = {}
         self._sph_c = scene.sphere_centers
         self._sph_r2 = scene.sphere_radii ** 2
@@ -220,6 +221,12 @@ class Tracer:
         keys = (light * self._n_prims + prim) * 3 + side + 1
         return np.where(light >= 0, keys, self._cand.shape[0] - 1)
 
+    def _stack_boxes(self, blocks):
+        """``(blocks, lo, hi)`` with the boxes stacked as (B, 3, 1) arrays."""
+        if not blocks:
+            return blocks, None, None
+        return (blocks, np.stack([b.box[0] for b in blocks]), np.stack([b.box[1] for b in blocks]))
+
     def _shadow_blocks(self, keys):
         if keys is None or self._cand.shape[1] == 0:
             return self._shadow_all
@@ -230,10 +237,11 @@ class Tracer:
         blocks = self._shadow_cache.get(tag)
         if blocks is None:
             blocks = []
-            for b in self._shadow_all:
+            for b in self._shadow_all[0]:
                 sub = b.idx[cand[b.idx]]
                 if sub.size:
                     blocks.append(self._make_block(sub, True))
+            blocks = self._stack_boxes(blocks)
             self._shadow_cache[tag] = blocks
         return blocks
 
@@ -241,18 +249,24 @@ class Tracer:
     # Kernels (structure-of-arrays, chunks of rays)
 
     @staticmethod
-    def _box_hit(box, o, d, tmax):
-        lo, hi = box
+    def _boxes_hit(lo, hi, o, d, tmax):
+        """Slab test of rays (3, m) against B boxes ``lo, hi`` (B, 3, 1) at once: (B, m) bool."""
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / d
-            t0 = (lo - o) * inv
-            t1 = (hi - o) * inv
+            oi = o * inv
+            t0 = lo * inv
+            t0 -= oi
+            t1 = hi * inv
+            t1 -= oi
         tn = np.minimum(t0, t1)
-        tf = np.maximum(t0, t1)
+        tf = np.maximum(t0, t1, out=t1)
         # NaN (0 * inf on a slab boundary) must count as 'maybe hit': fmax/fmin ignore NaN.
-        near = np.fmax(np.fmax(tn[0], tn[1]), tn[2])
-        far = np.fmin(np.fmin(tf[0], tf[1]), tf[2])
-        return (near <= far) & (far > 0) & (near < tmax)
+        near = np.fmax(np.fmax(tn[:, 0], tn[:, 1]), tn[:, 2])
+        far = np.fmin(np.fmin(tf[:, 0], tf[:, 1]), tf[:, 2])
+        ok = near <= far
+        ok &= far > 0
+        ok &= near < tmax
+        return ok
 
     def _block_t(self, blk, o4, d):
         """Distance to every triangle of ``blk`` (inf where not hit beyond epsilon), (k, m)."""
@@ -318,57 +332,55 @@ class Tracer:
         o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.full(n, np.inf, dtype=self.dtype)
         p_out = np.full(n, -1, dtype=np.int64)
+        open_blocks = [b for b in self._blocks if b.box is None]
+        boxed, lo, hi = self._boxed
         for s in range(0, n, self.chunk):
             sl = slice(s, min(n, s + self.chunk))
             oc, dc = o4[:, sl], d[:, sl]
             tb, pb = t_out[sl], p_out[sl]            # views: written in place
             tb[:] = tm[sl]
-            for blk in self._blocks:
-                if blk.box is None:
-                    t, p = self._closest_block(blk, oc, dc, tb)
-                    better = t < tb
-                    np.copyto(tb, t, where=better)
-                    np.copyto(pb, p, where=better)
-                    continue
-                sel = np.flatnonzero(self._box_hit(blk.box, oc[:3], dc, tb))
-                if sel.size == 0:
-                    continue
-                tsel = np.take(tb, sel)
-                t, p = self._closest_block(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1), tsel)
-                better = t < tsel
-                tb[sel[better]] = t[better]
-                pb[sel[better]] = p[better]
+            for blk in open_blocks:
+                t, p = self._closest_block(blk, oc, dc, tb)
+                better = t < tb
+                np.copyto(tb, t, where=better)
+                np.copyto(pb, p, where=better)
+            if boxed:
+                # all boxes at once, against the closest hit so far (conservative)
+                in_box = self._boxes_hit(lo, hi, oc[:3], dc, tb)
+                for blk, mask in zip(boxed, in_box):
+                    sel = np.flatnonzero(mask)
+                    if sel.size == 0:
+                        continue
+                    tsel = np.take(tb, sel)
+                    t, p = self._closest_block(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1), tsel)
+                    better = t < tsel
+                    tb[sel[better]] = t[better]
+                    pb[sel[better]] = p[better]
             tb[pb < 0] = np.inf
         return t_out.astype(np.float64), p_out
 
     def _any_triangles(self, o, d, tmax, keys):
         n = o.shape[1]
         occ = np.zeros(n, dtype=bool)
-        blocks = self._shadow_blocks(keys)
+        blocks, lo, hi = self._shadow_blocks(keys)
         if not blocks:
             return occ
         o4, d, tm = self._as_rays(o, d, tmax)
         for s in range(0, n, self.chunk):
             sl = slice(s, min(n, s + self.chunk))
             oc, dc, tc, occ_c = o4[:, sl], d[:, sl], tm[sl], occ[sl]
-            live = None
-            for blk in blocks:
-                if live is None:
-                    sel = np.flatnonzero(self._box_hit(blk.box, oc[:3], dc, tc))
-                else:
-                    lh = self._box_hit(blk.box, np.take(oc[:3], live, axis=1), np.take(dc, live, axis=1),
-                                       np.take(tc, live))
-                    sel = live[lh]
+            in_box = self._boxes_hit(lo, hi, oc[:3], dc, tc)
+            for i, blk in enumerate(blocks):
+                mask = in_box[i]
+                if i:
+                    mask &= ~occ_c                   # any-hit: occluded rays are done
+                sel = np.flatnonzero(mask)
                 if sel.size == 0:
                     continue
                 t, ok = self._block_t(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1))
                 ok &= t < np.take(tc, sel)
                 blocked = ok.any(axis=0)
-                if blocked.any():
-                    occ_c[sel[blocked]] = True
-                    live = np.flatnonzero(~occ_c)
-                    if live.size == 0:
-                        break
+                occ_c[sel[blocked]] = True
         return occ
 
     def _spheres(self, o, d, tmax):
