@@ -7,11 +7,10 @@ and chi-square tests at a Sidak-corrected family significance of 1e-3.
 """
 import numpy as np
 import pytest
-from scipy import stats
 
 import mcvar.bsdf as B
 from mcvar.geometry import spherical_to_direction
-from mcvar.testing import check_weight_consistency, chi2_test
+from mcvar.testing import bsdf_chi2_test, check_weight_consistency, chi2_test, mutants
 
 SEED = 20240917_4
 Z = 5.0
@@ -301,40 +300,20 @@ def test_delta_albedo_values():
 
 # ---------------------------------------------------------------- sampling
 
-def _chi2_pvalue(sample_wi, pdf_fn, n, n_mu=12, n_phi=24, sub=6):
-    """Histogram chi-square on the upper hemisphere in (cos theta, phi) cells.
-
-    Expected counts integrate the pdf per cell by a sub x sub midpoint rule;
-    cells with expected < 5 are pooled into one. Returns (pvalue, expected mass).
-    """
-    mu_edges = np.linspace(0, 1, n_mu + 1)
-    phi_edges = np.linspace(0, 2 * np.pi, n_phi + 1)
-    mu_s = (np.arange(n_mu * sub) + 0.5) / (n_mu * sub)
-    phi_s = (np.arange(n_phi * sub) + 0.5) * 2 * np.pi / (n_phi * sub)
-    M, P = np.meshgrid(mu_s, phi_s, indexing="ij")
-    s = np.sqrt(1 - M ** 2)
-    d = np.stack([s * np.cos(P), M, s * np.sin(P)], -1).reshape(-1, 3)
-    dens = pdf_fn(d).reshape(n_mu, sub, n_phi, sub).sum(axis=(1, 3))
-    expected = dens * (1 / (n_mu * sub)) * (2 * np.pi / (n_phi * sub)) * n
-    phi = np.mod(np.arctan2(sample_wi[:, 2], sample_wi[:, 0]), 2 * np.pi)
-    obs, _, _ = np.histogram2d(sample_wi[:, 1], phi, bins=[mu_edges, phi_edges])
-    e, o = expected.ravel(), obs.ravel()
-    small = e < 5
-    e = np.append(e[~small], e[small].sum())
-    o = np.append(o[~small], o[small].sum())
-    keep = e > 0
-    e, o = e[keep], o[keep]
-    stat = np.sum((o - e) ** 2 / e)
-    return stats.chi2.sf(stat, len(e) - 1), expected.sum() / n
-
-
-CHI2_MODELS = ["lambertian", "ggx", "ggx-aniso", "beckmann", "copper-rough", "gold-aniso", "plastic",
-               "plastic-rough", "retro", "ggx-rough1"]
-SIDAK = 1 - (1 - 1e-3) ** (1 / (2 * len(CHI2_MODELS)))
+# Every correct (sampler, pdf) chi-square test in this file is one family at
+# significance 1e-3 (Sidak): each non-delta model at two incidence angles, and
+# the three cases of test_public_chi2_test. One independent stream per test.
+CHI2_MODELS = list(NON_DELTA)
+CHI2_THETAS = [0.4, 1.3]
+CHI2_EXTRA = ["lambertian-1.2", "lambertian-grazing", "retro-normal"]
+CHI2_CASES = [f"{name}-{theta}" for name in CHI2_MODELS for theta in CHI2_THETAS] + CHI2_EXTRA
+CHI2_FAMILY = len(CHI2_CASES)
+STREAMS = dict(zip(CHI2_CASES, np.random.SeedSequence(SEED).spawn(CHI2_FAMILY)))
+N_CHI2 = 1_000_000
 
 
 @pytest.mark.parametrize("name", CHI2_MODELS)
-@pytest.mark.parametrize("theta", [0.4, 1.3])
+@pytest.mark.parametrize("theta", CHI2_THETAS)
 def test_sample_matches_pdf(name, theta, record_property):
     m = NON_DELTA[name]()
     n = 40000
@@ -347,39 +326,71 @@ def test_sample_matches_pdf(name, theta, record_property):
     f = m.eval(wo[live], wi[live])
     np.testing.assert_allclose(weight[live], f * wi[live, 1:2] / pdf[live, None], rtol=1e-9, atol=1e-300)
     np.testing.assert_allclose(pdf[live], m.pdf(wo[live], wi[live]), rtol=1e-9)
-    # failed samples: the pdf mass not covered equals the failure rate
-    p, mass = _chi2_pvalue(wi[live], lambda d: m.pdf(np.repeat(wo1[None], len(d), 0), d), n)
-    record_property("chi2_pvalue", float(p))
-    assert p > SIDAK
-    frac = live.mean() + delta.mean()
-    assert abs(mass + delta.mean() - frac) <= Z * np.sqrt(frac * (1 - frac) / n) + 0.01 * mass
+    # the sampled directions follow pdf(); failed and delta samples are left out and
+    # their fraction must match the pdf's missing mass (binomial test inside)
+    r = bsdf_chi2_test(m, wo1, n=N_CHI2, rng=STREAMS[f"{name}-{theta}"], significance=1e-3,
+                       test_count=CHI2_FAMILY)
+    record_property("chi2_pvalue", r.pvalue)
+    record_property("valid_fraction_pvalue", r.valid_pvalue)
+    record_property("failed_fraction", r.failed / r.n)
+    record_property("delta_fraction", r.delta / r.n)
+    assert r.passed, r.message
+    if m.has_delta:   # smooth plastic: the coat is chosen with its Fresnel-weighted probability
+        p = float(m.specular_probability(wo1[None, 1])[0])
+        assert abs(r.delta - N_CHI2 * p) <= Z * np.sqrt(N_CHI2 * p * (1 - p))
+        assert r.pdf_integral == pytest.approx(1 - p, abs=1e-6)
 
 
-@pytest.mark.parametrize("name", [k for k in NON_DELTA if k != "plastic"])
+@pytest.mark.parametrize("name", list(NON_DELTA))
 def test_public_weight_consistency_check(name):
-    """mcvar.testing's check (weight = eval |cos| / pdf, sample pdf = pdf()) on pure non-delta models."""
+    """mcvar.testing's check (weight = eval |cos| / pdf, sample pdf = pdf()); mixed
+    models (smooth plastic) through the return_delta mask."""
     m = NON_DELTA[name]()
     rng = np.random.default_rng(SEED)
     r = check_weight_consistency(m, _random_upper(rng, 20000), n=20000, rng=rng, rtol=1e-9)
     assert r.passed, r.message
 
 
-@pytest.mark.parametrize("make,wo", [
-    (lambda: B.Lambertian(0.5), _dirs(1.2)[0]),
-    (lambda: B.Lambertian(0.5), np.array([1.0, 0.0, 0.0])),            # grazing wo
-    (lambda: B.Retroreflective(0.5, 6.0), np.array([0.0, 1.0, 0.0])),  # lobe about the normal: no failures
-])
-def test_public_chi2_test(make, wo, record_property):
+@pytest.mark.parametrize("case,make,wo", [
+    ("lambertian-1.2", lambda: B.Lambertian(0.5), _dirs(1.2)[0]),
+    ("lambertian-grazing", lambda: B.Lambertian(0.5), np.array([1.0, 0.0, 0.0])),
+    ("retro-normal", lambda: B.Retroreflective(0.5, 6.0), np.array([0.0, 1.0, 0.0])),  # no failures
+], ids=CHI2_EXTRA)
+def test_public_chi2_test(case, make, wo, record_property):
     m = make()
-    wo = wo / np.linalg.norm(wo)
     if wo[1] > 0:
-        pdf = lambda d: m.pdf(np.repeat(wo[None], len(d), 0), d)   # noqa: E731
-    else:   # at exactly grazing wo a one-sided BRDF is 0; the sampler's density is still cos/pi
-        pdf = lambda d: np.maximum(d[:, 1], 0.0) / np.pi            # noqa: E731
-    r = chi2_test(lambda u: m.sample(np.repeat(wo[None], len(u), 0), u).wi, pdf, "hemisphere",
-                  n=100_000, rng=np.random.default_rng(SEED), significance=1e-3, test_count=3)
+        r = bsdf_chi2_test(m, wo, n=100_000, rng=STREAMS[case], significance=1e-3,
+                           test_count=CHI2_FAMILY)
+        assert r.failed == 0 and r.delta == 0
+    else:   # at exactly grazing wo every sample fails (pdf 0); the directions drawn are still cos/pi
+        r = chi2_test(lambda u: m.sample(np.repeat(wo[None], len(u), 0), u).wi,
+                      lambda d: np.maximum(d[:, 1], 0.0) / np.pi, "hemisphere", n=100_000,
+                      rng=STREAMS[case], significance=1e-3, test_count=CHI2_FAMILY)
+        with pytest.raises(ValueError, match="above the horizon"):
+            bsdf_chi2_test(m, wo, n=10)
     record_property("chi2_pvalue_public", r.pvalue)
     assert r.passed, r.message
+
+
+@pytest.mark.parametrize("name,wrap", [
+    ("ggx", lambda b: mutants.pdf_scaled(b, 1.05)),
+    ("plastic", lambda b: mutants.pdf_scaled(b, 1.05)),     # delta fraction + pdf mass > 1
+    ("ggx-aniso", mutants.sample_tangent_flipped),
+    ("gold-aniso", lambda b: mutants.sample_pdf_scaled(b, 1.05)),
+], ids=["ggx-pdf_scaled", "plastic-pdf_scaled", "ggx-aniso-tangent_flipped", "gold-aniso-sample_pdf_scaled"])
+def test_public_chi2_test_rejects_broken_bsdfs(name, wrap):
+    """The public tests still see broken BSDFs (mcvar.testing.mutants' wrappers):
+    a wrong distribution through bsdf_chi2_test, a wrong sample pdf through
+    check_weight_consistency."""
+    broken = wrap(NON_DELTA[name]())
+    wo = _dirs(0.4, 0.7)[0]
+    if name == "gold-aniso":     # distribution intact, reported pdf wrong
+        assert bsdf_chi2_test(broken, wo, n=100_000, rng=SEED, significance=1e-3,
+                              test_count=CHI2_FAMILY).passed
+        assert not check_weight_consistency(broken, wo, n=1000, rng=SEED).passed
+    else:
+        r = bsdf_chi2_test(broken, wo, n=100_000, rng=SEED)
+        assert not r.passed, r.message
 
 
 def test_glass_lobe_frequencies_follow_fresnel():
