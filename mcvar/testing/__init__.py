@@ -183,13 +183,18 @@ def check_pdf_normalized(pdf: Callable, domain: Domain, *, bounds=None, atol: fl
 
 @runtime_checkable
 class BSDFLike(Protocol):
-    """What :func:`check_weight_consistency` needs (docs/conventions.md).
+    """What :func:`check_weight_consistency` and :func:`bsdf_chi2_test` need
+    (docs/conventions.md).
 
     ``eval(wo, wi) -> (n, 3)`` or ``(n,)``: f, the BSDF value;
-    ``pdf(wo, wi) -> (n,)``: solid-angle density of ``sample``;
-    ``sample(wo, u) -> (wi, weight, pdf)`` with ``weight = f |cos theta_i| / pdf``
-    (0 for a failed sample). An optional ``is_delta`` attribute marks Dirac
-    BSDFs, whose ``eval`` and ``pdf`` are 0 for every direction pair.
+    ``pdf(wo, wi) -> (n,)``: solid-angle density of ``sample``'s non-delta
+    samples; ``sample(wo, u) -> (wi, weight, pdf)`` with
+    ``weight = f |cos theta_i| / pdf`` (0 for a failed sample). Optional
+    attributes: ``is_delta`` marks Dirac BSDFs, whose ``eval`` and ``pdf``
+    are 0 for every direction pair; ``has_delta`` without ``is_delta`` a
+    mixed model, whose ``sample(wo, u, return_delta=True)`` adds a mask of
+    the delta-lobe samples; ``transmissive`` a BSDF that samples the whole
+    sphere.
     """
 
     def eval(self, wo, wi): ...
