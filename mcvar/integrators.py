@@ -688,6 +688,29 @@ def _pool_context():
     return None
 
 
+#: The worker processes, kept from one render to the next as ``[executor,
+#: workers]``: a fresh process spends its first batch at about half speed
+#: touching new memory (measured: 0.2 s wall for 0.1 s of CPU on this
+#: machine), a warm one does not. Closed on Ctrl-C or error; Python's exit
+#: handler joins it.
+_POOL: list = []
+
+
+def _worker_pool(workers: int) -> ProcessPoolExecutor:
+    if _POOL and _POOL[1] == workers:
+        return _POOL[0]
+    _close_pool()
+    _POOL[:] = [ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()), workers]
+    return _POOL[0]
+
+
+def _close_pool(wait: bool = True) -> None:
+    if _POOL:
+        executor = _POOL[0]
+        _POOL.clear()
+        executor.shutdown(wait=wait, cancel_futures=True)
+
+
 def _render_batch(job: _Job, spp: int, rng):
     """Render ``spp`` samples of every pixel; return (sum, sum of squares, rays)."""
     w, h = job.res
@@ -851,22 +874,23 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
         if callback is not None:
             callback(done, spp)
 
-    pool = None
     try:
         if workers == 1 or len(sizes) == 1:
             for k, (b, stream) in enumerate(zip(sizes, streams)):
                 collect(_render_batch(job, b, stream), k)
         else:
-            pool = ProcessPoolExecutor(max_workers=min(workers, len(sizes)), mp_context=_pool_context())
+            pool = _worker_pool(workers)
             futures = [pool.submit(_render_batch, job, b, stream) for b, stream in zip(sizes, streams)]
-            for k, fut in enumerate(futures):
-                collect(fut.result(), k)
+            try:
+                for k, fut in enumerate(futures):
+                    collect(fut.result(), k)
+            except BaseException:
+                _close_pool(wait=False)       # never leave a render's batches running
+                raise
     except KeyboardInterrupt:
         interrupted = True
     finally:
         _TRACERS.pop(job.token, None)
-        if pool is not None:
-            pool.shutdown(wait=not interrupted, cancel_futures=True)
         if bar is not None:
             bar.close()
     seconds = time.perf_counter() - start
