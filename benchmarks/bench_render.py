@@ -16,47 +16,56 @@ import argparse
 import cProfile
 import io
 import pstats
-import time
+import os
 import tracemalloc
 
 import numpy as np
 
-from mcvar.integrators import render
+from mcvar.integrators import PATHS_PER_BATCH, render
 from mcvar.metrics import mse
 from mcvar.scene import load_scene
 
 
-def _rate(scene, integrator, res, spp, **kw):
+def _rate(scene, integrator, res, spp, repeats, **kw):
+    """Best and median paths/s over ``repeats`` renders (the machine may be shared)."""
     render(scene, integrator=integrator, res=16, spp=1, rng=0, **kw)   # warm-up
-    r = render(scene, integrator=integrator, res=res, spp=spp, rng=1, **kw)
-    paths = res * res * r.spp
-    return paths / r.seconds, r.rays / r.seconds, r.seconds, r.rays / paths
+    rates, rays = [], []
+    for _ in range(repeats):
+        r = render(scene, integrator=integrator, res=res, spp=spp, rng=1, **kw)
+        rates.append(res * res * r.spp / r.seconds)
+        rays.append(r.rays / (res * res * r.spp))
+    return max(rates), float(np.median(rates)), float(np.mean(rays))
 
 
 def main(quick: bool = False):
     scene = load_scene("cornell")
-    print("== throughput (Cornell box, sampler random)")
+    print(f"load average before: {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} CPUs")
+    repeats = 2 if quick else 5
+    print("== throughput (Cornell box, sampler random), best and median of", repeats)
     print(f"{'integrator':>10} {'res':>5} {'spp':>4} {'geometry':>8} {'workers':>7} "
-          f"{'paths/s':>10} {'rays/s':>10} {'rays/path':>9} {'seconds':>8}")
-    cases = [("path", 64, 16), ("direct", 64, 16), ("path", 256, 4 if quick else 8), ("direct", 256, 4 if quick else 8)]
+          f"{'paths/s best':>12} {'median':>8} {'rays/s best':>11} {'rays/path':>9}")
+    cases = [("path", 64, 16), ("direct", 64, 16), ("path", 256, 4 if quick else 8),
+             ("direct", 256, 4 if quick else 8)]
     for integrator, res, spp in cases:
         for precision in ("float32", "float64"):
             for workers in (1, 2):
                 if precision == "float64" and workers == 2:
                     continue
-                bs = None if workers == 1 else max(1, spp // 4)
-                p, r, s, rp = _rate(scene, integrator, res, spp, precision=precision, workers=workers,
-                                    batch_spp=bs)
+                # the same batches for 1 and 2 workers (same image); at least two of them
+                bs = max(1, min(spp // 2, PATHS_PER_BATCH // (res * res)))
+                best, med, rp = _rate(scene, integrator, res, spp, repeats, precision=precision,
+                                      workers=workers, batch_spp=bs)
                 print(f"{integrator:>10} {res:>5} {spp:>4} {precision:>8} {workers:>7} "
-                      f"{p / 1e6:>8.3f} M {r / 1e6:>8.3f} M {rp:>9.2f} {s:>8.2f}")
+                      f"{best / 1e6:>10.3f} M {med / 1e6:>6.3f} M {best * rp / 1e6:>9.3f} M {rp:>9.2f}")
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
 
     print("\n== peak memory of one 256 x 256 render (tracemalloc, NumPy buffers included)")
     for integrator in ("path", "direct"):
         tracemalloc.start()
-        render(scene, integrator=integrator, res=256, spp=4, rng=2)
+        r = render(scene, integrator=integrator, res=256, spp=4, rng=2)
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-        print(f"{integrator:>10}: peak {peak / 2**20:.0f} MiB (batch of {256 * 256 * 4} paths)")
+        print(f"{integrator:>10}: peak {peak / 2**20:.0f} MiB (batches of {256 * 256 * r.batch_spp} paths)")
 
     print("\n== MSE x spp against a high-spp reference (64 x 64, path, random sampler)")
     ref_spp = 256 if quick else 1024

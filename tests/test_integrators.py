@@ -211,6 +211,16 @@ def test_two_workers_give_the_same_image_as_one(cornell):
     assert b.spp == 8 and not b.interrupted
 
 
+def test_kept_worker_pool_renders_each_scene_with_its_own_tracer(cornell):
+    # the worker processes outlive a render; the next render's batches must
+    # use the next scene (tracers are keyed by a per-render token)
+    spheres = load_scene("cornell-spheres")
+    for scene in (cornell, spheres, cornell):
+        a = render(scene, spp=4, res=8, rng=SEED + 90, batch_spp=1, workers=1)
+        b = render(scene, spp=4, res=8, rng=SEED + 90, batch_spp=1, workers=2)
+        np.testing.assert_array_equal(a.image, b.image)
+
+
 def test_interrupted_render_keeps_the_finished_batches(cornell):
     calls = []
 

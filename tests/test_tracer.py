@@ -169,7 +169,8 @@ def test_any_hit_shadow_rays_equal_the_closest_hit_oracle(dtype):
     tr = Tracer(scene, dtype=dtype)
     o, w, tmax, keys = _shadow_rays(scene, tr, 20000, rng)
     closest = tr.intersect(o, w, tmax).prim >= 0
-    t_all, _, _ = _oracle(scene.triangles, o, w, scene.ray_epsilon)
+    with np.errstate(invalid="ignore"):          # the oracle's NaN for rays parallel to a plane
+        t_all, _, _ = _oracle(scene.triangles, o, w, scene.ray_epsilon)
     oracle = np.any(t_all < tmax[:, None], axis=1)
     assert 0.05 < oracle.mean() < 0.95                  # both outcomes are exercised
     np.testing.assert_array_equal(tr.occluded(o, w, tmax), closest)
