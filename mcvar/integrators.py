@@ -258,10 +258,10 @@ class _Shading:
 
 
 def _flips(material) -> bool:
-    """Whether the caller flips the shading normal towards ``wo`` (two-sided)."""
-    from .bsdf import Glass, Refractive
-
-    return not isinstance(material, (Glass, Refractive))
+    """Whether the caller flips the shading normal towards ``wo`` (two-sided):
+    every material except those light may cross (``BSDF.transmissive``), which
+    tell inside from outside by the sign of ``wo.y``."""
+    return not getattr(material, "transmissive", False)
 
 
 def _dot(a, b):
