@@ -576,14 +576,35 @@ def _next_event(sh, wf, tracer, groups, p, ng, frame, wo_l, prim, beta, u_light,
     ngo = np.take(ng, go, 1)
     wgo = np.take(w, go, 1)
     side = np.sign(_dot(wgo, ngo))
-    origin = ngo * (sh.eps * side)
-    origin += np.take(p, go, 1)
-    tmax = np.take(dist, go) - 2.0 * sh.eps
+    origin, d_shadow, tmax = _shadow_rays(np.take(p, go, 1), ngo, side, wgo, np.take(dist, go), sh.eps)
     keys = tracer.shadow_keys(np.take(prim, go), side, np.take(light, go))
-    blocked = tracer.occluded_soa(origin, wgo, tmax, keys)
+    blocked = tracer.occluded_soa(origin, d_shadow, tmax, keys)
     vis = go[~blocked]
     _accumulate(radiance, np.take(idx, vis), np.take(contrib, vis, 1))
     return int(go.size)
+
+
+def _shadow_rays(p, ng, side, w, dist, eps):
+    """Shadow rays from shading points ``p`` to light samples ``p + dist * w``.
+
+    SoA arrays ``(3, m)``. The origin is offset by ``eps`` along the geometric
+    normal ``ng`` (on the side ``side`` of the surface) to avoid
+    self-intersection, and the ray is aimed from that *offset* origin at the
+    light sample, stopping ``2 eps`` short of it. Aiming along ``w`` from the
+    offset origin instead would end past the light's plane whenever the light
+    is seen at a grazing angle (``cos theta_light < 1/2`` for a surface facing
+    it), so the emitter would occlude its own shadow ray.
+
+    Returns ``(origin, direction, tmax)``.
+    """
+    origin = ng * (eps * side)
+    origin += p
+    to_light = w * dist
+    to_light += p
+    to_light -= origin
+    length = np.sqrt(_dot(to_light, to_light))
+    direction = to_light / length
+    return origin, direction, length - 2.0 * eps
 
 
 def _accumulate(radiance, rows, value):

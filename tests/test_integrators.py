@@ -281,3 +281,27 @@ def test_bad_types(cornell):
 def test_integrator_names_are_the_documented_ones():
     assert set(INTEGRATORS) == {"path", "path_bsdf", "direct", "direct_light", "direct_bsdf",
                                 "albedo", "normal", "depth", "raster"}
+
+
+def test_shadow_rays_stop_short_of_the_light_plane_at_grazing_angles():
+    # Floor points (normal +y) lit by samples on a light plane y = 548.7 facing
+    # down, seen at angles down to ~2 degrees above the horizon. A shadow ray
+    # aimed along w from the offset origin would end past the light's plane
+    # whenever cos(theta_light) < 1/2, so the emitter would shadow itself.
+    from mcvar.integrators import _shadow_rays
+
+    rng = np.random.default_rng(4417)
+    m, eps, light_y = 2000, 1.0, 548.7
+    p = np.stack([rng.uniform(-1.5e4, 1.5e4, m), np.zeros(m), rng.uniform(-1.5e4, 1.5e4, m)])
+    light = np.stack([rng.uniform(213, 343, m), np.full(m, light_y), rng.uniform(227, 332, m)])
+    to_light = light - p
+    dist = np.linalg.norm(to_light, axis=0)
+    w = to_light / dist
+    assert np.mean(w[1] < 0.5) > 0.9  # the test covers the grazing cases
+    ng = np.tile([[0.0], [1.0], [0.0]], (1, m))
+    origin, d, tmax = _shadow_rays(p, ng, np.ones(m), w, dist, eps)
+    end = origin + d * tmax
+    np.testing.assert_allclose(np.linalg.norm(d, axis=0), 1.0, atol=1e-12)
+    assert np.all(end[1] < light_y)
+    # the segment ends 2 eps before the light sample, along the line to it
+    np.testing.assert_allclose(np.linalg.norm(light - end, axis=0), 2 * eps, rtol=1e-9)
