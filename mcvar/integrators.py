@@ -590,7 +590,8 @@ def _shadow_rays(p, ng, side, w, dist, eps):
     SoA arrays ``(3, m)``. The origin is offset by ``eps`` along the geometric
     normal ``ng`` (on the side ``side`` of the surface) to avoid
     self-intersection, and the ray is aimed from that *offset* origin at the
-    light sample, stopping ``2 eps`` short of it. Aiming along ``w`` from the
+    light sample, stopping ``2 eps`` short of it (samples at infinite
+    ``dist``, from an environment, keep ``w`` and ``tmax = inf``). Aiming along ``w`` from the
     offset origin instead would end past the light's plane whenever the light
     is seen at a grazing angle (``cos theta_light < 1/2`` for a surface facing
     it), so the emitter would occlude its own shadow ray.
@@ -599,12 +600,13 @@ def _shadow_rays(p, ng, side, w, dist, eps):
     """
     origin = ng * (eps * side)
     origin += p
-    to_light = w * dist
+    far = ~np.isfinite(dist)  # environment samples: infinitely far, keep w
+    to_light = w * np.where(far, 1.0, dist)
     to_light += p
     to_light -= origin
     length = np.sqrt(_dot(to_light, to_light))
-    direction = to_light / length
-    return origin, direction, length - 2.0 * eps
+    direction = np.where(far, w, to_light / length)
+    return origin, direction, np.where(far, np.inf, length - 2.0 * eps)
 
 
 def _accumulate(radiance, rows, value):

@@ -305,3 +305,13 @@ def test_shadow_rays_stop_short_of_the_light_plane_at_grazing_angles():
     assert np.all(end[1] < light_y)
     # the segment ends 2 eps before the light sample, along the line to it
     np.testing.assert_allclose(np.linalg.norm(light - end, axis=0), 2 * eps, rtol=1e-9)
+
+
+def test_shadow_rays_to_infinitely_far_samples_keep_their_direction():
+    from mcvar.integrators import _shadow_rays
+
+    w = np.array([[0.6], [0.8], [0.0]])
+    origin, d, tmax = _shadow_rays(np.zeros((3, 1)), np.array([[0.0], [1.0], [0.0]]), np.ones(1),
+                                   w, np.array([np.inf]), 1e-3)
+    np.testing.assert_array_equal(d, w)
+    assert tmax[0] == np.inf and np.all(np.isfinite(origin))
