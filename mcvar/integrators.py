@@ -411,19 +411,6 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
     weight_fn = HEURISTICS[heuristic]
     tracer = tracer if tracer is not None else Tracer(scene)
     sh = _Shading(scene, tracer)
-    nee = nee and sh.n_emitters > 0
-    o = np.asarray(origins, dtype=np.float64)
-    d = np.asarray(directions, dtype=np.float64)
-    n = o.shape[0]
-    check_choice(integrator, "integrator", tuple(_MODES))
-    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
-    rng = as_rng(rng)
-    nee, bsdf_hits, mis = _MODES[integrator]
-    if integrator.startswith("direct"):
-        max_depth = 2
-    weight_fn = HEURISTICS[heuristic]
-    tracer = tracer if tracer is not None else Tracer(scene)
-    sh = _Shading(scene, tracer)
     wf = _Wavefront(scene, tracer, sh)
     nee = nee and sh.n_emitters > 0
     o = np.array(np.asarray(origins, dtype=np.float64).T, order="C")
