@@ -124,7 +124,9 @@ class EnvironmentMap:
     ``1 / (2 pi^2 sin theta)`` Jacobian into the pdf, infinite at the poles.
 
     The importance tables are built on first use of a method and cached: the
-    1D CDF and the 2D marginal/conditional tables take ``8 H W`` bytes each.
+    1D CDF with its step sizes, or the 2D conditional CDFs with theirs, keep
+    two ``H x W`` float64 arrays (``16 H W`` bytes: 268 MB at 4096 x 2048)
+    and building them peaks at four.
     Sampling and pdf evaluation use ``O(n)`` memory for ``n`` directions
     (binary search; no ``n x H W`` temporaries).
 
