@@ -83,7 +83,9 @@ class Estimate:
         The estimate. An array (e.g. shape ``(3,)`` for RGB) estimates each
         component at once; ``variance`` then has the same shape.
     variance : float or ndarray
-        Per-sample variance, ``>= 0`` (``inf`` when unknown, i.e. ``n = 1``).
+        Per-sample variance, ``>= 0``; ``inf`` when unknown (``n = 1``, or
+        a multi-sample MIS estimate with a strategy of one sample), which
+        gives an infinite interval rather than a false zero error.
         For ``method='iid'`` the unbiased sample variance of the
         contributions ``f(X)/p(X)``; for ``method='replicates'`` the
         per-sample variance implied by the scatter of the replicate means,
@@ -161,8 +163,6 @@ class Estimate:
         if self.method == "iid":
             if self.replicates != 0:
                 raise ValueError(f"replicates must be 0 for method='iid'; got {self.replicates}")
-            if n > 1 and var.size and not np.all(np.isfinite(var)):
-                raise ValueError("variance must be finite when n > 1")
         else:
             r = check_count(self.replicates, "replicates")
             if r < 2 or n % r:
@@ -343,6 +343,8 @@ def _points(sampler, m: int, rng) -> np.ndarray:
     u = np.asarray(u, dtype=np.float64)
     if u.shape != (m, 2):
         raise ValueError(f"sampler must return shape ({m}, 2); got {u.shape}")
+    if not np.all((u >= 0.0) & (u <= 1.0)):   # NaN fails too
+        raise ValueError(f"sampler must return points in [0, 1]^2 (no NaN); got {u[~((u >= 0) & (u <= 1))][0]}")
     return u
 
 
@@ -904,7 +906,9 @@ def mis_estimate(f, strategies, *, n, heuristic: Literal["balance", "power"] = "
     -------
     Estimate
         ``n = sum n_k``. iid: ``stderr^2 = sum_k s_k^2 / n_k`` (the strategies'
-        sample means are independent) and ``variance = n * stderr^2``;
+        sample means are independent) and ``variance = n * stderr^2``
+        (``inf``, i.e. unknown, if some ``n_k = 1``: one sample has no
+        sample variance);
         replicates: each replicate runs the whole estimator with
         ``n_k // R`` samples per strategy.
 

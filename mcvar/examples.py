@@ -1,4 +1,4 @@
-"""Integrands with known integrals and the lecture's estimator examples (layer 3).
+"""Integrands with known integrals and the lecture's estimator examples (layer 4).
 
 Three things live here:
 

@@ -163,6 +163,25 @@ def test_hemisphere_large_k_and_errors():
     assert abs(e.mean - p.exact) < Z * e.stderr
     with pytest.raises(ValueError, match="k must be >= 0"):
         hemisphere_problem(-1.0)
+    with pytest.raises(ValueError, match="k must be finite"):
+        hemisphere_problem(float("nan"))
+
+
+def test_hemisphere_k_very_large():
+    # k = 10^4: cos^(k+1) underflows to 0 away from the normal; the lobe still returns the
+    # exact 2 pi / (k + 2) at every interior point, and u_0 = 0 exactly (the horizon, where
+    # f = p = 0) gives 0, not NaN. The analytic variances stay ordered and positive.
+    p = hemisphere_problem(1e4)
+    u = np.random.default_rng(31415).random((20_000, 2))
+    u[:4] = [[0.0, 0.0], [1.0, 1.0], [0.0, 1.0], [1.0, 0.0]]
+    y = p.methods["lobe"](u)
+    assert y[0] == y[2] == 0.0                      # u_0 = 0: the horizon, measure zero
+    assert np.allclose(y[[1, 3]], p.exact, rtol=1e-9)      # u_0 = 1: the normal
+    assert np.allclose(y[4:], p.exact, rtol=1e-9)
+    v = p.variances
+    assert 0 < v["cosine"] < v["mis"] < v["uniform"]
+    for method in ("uniform", "cosine", "mis"):
+        assert np.all(np.isfinite(p.methods[method](u)))
 
 
 # ---------------------------------------------------------------- QMC on aligned boards
