@@ -304,3 +304,13 @@ def test_sobol_warns_for_non_power_of_two_at_caller():
     with pytest.warns(UserWarning, match="not a power of 2") as record:
         S.sobol(100, rng=1)
     assert record[0].filename == __file__
+
+
+def test_scrambled_sobol_randomises_every_binary_digit():
+    # With scipy's default 30 bits, scrambled points lie on a 2^-30 grid and the
+    # mean of u is 1/2 - 2^-31: a bias no replicate error bar can detect.
+    # Exact fact: scrambled points are not on that grid; unscrambled ones are.
+    pts = S.sobol(256, rng=20261122)
+    assert np.mean(np.ldexp(pts, 30) % 1.0 != 0.0) > 0.99
+    raw = S.sobol(256, rng=20261122, scramble=False)
+    assert np.all(np.ldexp(raw, 30) % 1.0 == 0.0)
