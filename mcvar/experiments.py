@@ -569,7 +569,12 @@ def _config_metrics(method, sampler, spp, values, seconds, ref: Reference) -> Co
     a = t_r.var(ddof=1) / r
     bvar = ref.mean_variance
     diff = float(t_r.mean() - ref_v.mean())
-    se = np.sqrt(a + bvar)
+    # A float64 mean carries rounding of order eps * |value|. Without this floor
+    # an exact, zero-variance estimator (importance sampling with the integrand
+    # as its pdf) would be 'biased' at z = inf by its last bit; a real bias of a
+    # zero-variance estimator (the fixed grid's 2 / m^2) still stands out.
+    rounding = 64.0 * np.finfo(np.float64).eps * max(abs(float(t_r.mean())), abs(float(ref_v.mean())))
+    se = np.sqrt(a + bvar + rounding ** 2)
     if se > 0:
         z = diff / se
         den = a * a / (r - 1) + (bvar * bvar / (ref.chunks - 1) if ref.chunks > 1 else 0.0)

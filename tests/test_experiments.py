@@ -315,3 +315,23 @@ def test_the_lectures_estimators_get_the_lectures_verdicts():
         assert m.variance == 0 and m.bias == pytest.approx(2 / m.spp, rel=1e-12)
     undivided = [m for m in result.metrics if m.method == "undivided"]
     assert undivided[-1].bias == pytest.approx(0.5 - 2.0, abs=Z * undivided[-1].bias_stderr)
+
+
+def _zero_variance_evaluate(method, sampler, spp, rng):
+    # 'exact': an estimator with zero variance whose float64 result differs from
+    # the exact value by rounding only (one or two ulps at some levels);
+    # 'offset': zero variance and a real bias of 1e-9.
+    exact = 2.0 * np.pi / 3.0
+    value = exact
+    for _ in range(spp % 3):
+        value = np.nextafter(value, np.inf)
+    return np.array([value + (1e-9 if method == "offset" else 0.0)])
+
+
+def test_zero_variance_estimators_are_judged_by_rounding_not_by_z_infinity():
+    target = ex.Target(name="zero-variance", evaluate=_zero_variance_evaluate, key="zero-variance-v1",
+                       methods=("exact", "offset"), samplers=("random",), spp=(1, 3, 7, 49),
+                       exact=np.array([2.0 * np.pi / 3.0]))
+    result = ex.sweep(target, replicates=4, seed=3, executor=ex.SerialExecutor(), progress=False)
+    assert result.verdicts["exact"].unbiased
+    assert not result.verdicts["offset"].unbiased
