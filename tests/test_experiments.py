@@ -335,3 +335,22 @@ def test_zero_variance_estimators_are_judged_by_rounding_not_by_z_infinity():
     result = ex.sweep(target, replicates=4, seed=3, executor=ex.SerialExecutor(), progress=False)
     assert result.verdicts["exact"].unbiased
     assert not result.verdicts["offset"].unbiased
+
+
+def _scalar_evaluate(method, sampler, spp, rng):
+    # Heavy-ish tails like a Monte Carlo contribution; 'mc' averages spp of them,
+    # 'single' is the lecture's one random sample whatever spp says.
+    n = 1 if method == "single" else spp
+    return np.array([1.0 + rng.exponential(1.0, n).mean() - 1.0])
+
+
+def test_consistency_of_a_scalar_estimator_is_detected_from_few_replicates():
+    # With 8 replicates the MSE at N = 1 has a relative error ~0.5, so a
+    # first-vs-last comparison alone cannot reach the Sidak-corrected level:
+    # the slope over all levels must carry the verdict.
+    target = ex.Target(name="scalar", evaluate=_scalar_evaluate, key="scalar-v1",
+                       methods=("mc", "single"), samplers=("random",),
+                       spp=tuple(4 ** k for k in range(7)), exact=np.array([1.0]))
+    result = ex.sweep(target, replicates=8, seed=11, executor=ex.SerialExecutor(), progress=False)
+    assert result.verdicts["mc"].label == "both"
+    assert result.verdicts["single"].label == "unbiased"
