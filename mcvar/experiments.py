@@ -513,6 +513,9 @@ class ConfigMetrics:
     bias_detected : bool
         ``bias_pvalue < alpha_family`` (Sidak-corrected over the method's
         configurations; see :func:`sweep`).
+    rounding : float
+        Floating-point floor of the bias test's standard error,
+        ``64 eps |value|``: an error below it is rounding, not bias or noise.
     """
 
     method: str
@@ -534,6 +537,7 @@ class ConfigMetrics:
     bias_dof: float
     bias_pvalue: float
     bias_detected: bool = False
+    rounding: float = 0.0
 
     @property
     def figure_of_merit(self) -> float:
@@ -585,7 +589,7 @@ def _config_metrics(method, sampler, spp, values, seconds, ref: Reference) -> Co
         dof, p = float("inf"), (1.0 if diff == 0 else 0.0)
     return ConfigMetrics(method, sampler, int(spp), r, variance, float(stderr[0]), bias2,
                          float(stderr[1]), mse, float(stderr[2]), rel, sec, eff, diff, float(se),
-                         float(z), dof, p)
+                         float(z), dof, p, rounding=float(rounding))
 
 
 # --------------------------------------------------------------------------
@@ -655,8 +659,9 @@ def _fits(method, sampler, rows: Sequence[ConfigMetrics], alpha: float) -> Metho
     f_time = _fit([m.seconds for m in rows], mse)
     f_b2 = _fit(spp, [m.bias2 for m in rows])
     first, last = rows[0], rows[-1]
-    if max(abs(v) for v in mse) == 0:
-        return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, True, "exact at every level")
+    if all(abs(m.mse) <= m.rounding ** 2 for m in rows):
+        return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, True,
+                          "exact at every level (error within floating-point rounding)")
     if len(rows) < 2:
         return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, False,
                           "one spp level: consistency cannot be measured")
