@@ -388,8 +388,19 @@ def _decode_scanlines(data: bytes, pos: int, n_lines: int, width: int, path) -> 
 # OpenEXR, PNG, NPY
 # --------------------------------------------------------------------------
 
+def _openexr():
+    """The OpenEXR module, or an ImportError that says how to install it."""
+    try:
+        import OpenEXR
+    except ImportError as exc:
+        raise ModuleNotFoundError(
+            ".exr files need the OpenEXR package: pip install 'mcvar[exr]' (or pip install OpenEXR)"
+        ) from exc
+    return OpenEXR
+
+
 def _write_exr(path: pathlib.Path, image: np.ndarray) -> None:
-    import OpenEXR
+    OpenEXR = _openexr()
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with OpenEXR.File(header, {"RGB": np.ascontiguousarray(image, dtype=np.float32)}) as fh:
@@ -397,7 +408,7 @@ def _write_exr(path: pathlib.Path, image: np.ndarray) -> None:
 
 
 def _read_exr(path: pathlib.Path) -> np.ndarray:
-    import OpenEXR
+    OpenEXR = _openexr()
 
     try:
         with OpenEXR.File(str(path), separate_channels=True) as fh:

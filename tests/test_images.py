@@ -314,3 +314,11 @@ def test_npy_header_is_float32_hwc(tmp_path):
     arr = np.load(path)
     assert arr.dtype == np.float32 and arr.shape == (3, 4, 3)
     assert path.read_bytes().startswith(b"\x93NUMPY")  # an .npy, not a pickle
+
+
+def test_exr_without_the_openexr_package_says_how_to_install_it(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # import now raises ImportError
+    with pytest.raises(ImportError, match=r"mcvar\[exr\]"):
+        write_image(tmp_path / "a.exr", np.ones((2, 2, 3)))
