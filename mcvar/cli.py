@@ -69,7 +69,8 @@ def _cmd_converge(args) -> int:
 
     paths = convergence_report(args.target, args.out, methods=args.methods, samplers=args.samplers,
                                spp=args.spp, replicates=args.replicates, res=args.res,
-                               seed=args.seed, workers=args.workers, progress=not args.quiet)
+                               seed=args.seed, workers=args.workers, progress=not args.quiet,
+                               reference=args.reference)
     for key, path in paths.items():
         print(f"{key}: {path}")
     return 0
@@ -143,6 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--res", type=int, default=32, help="image resolution for scenes (default 32)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--reference", type=Path, default=None,
+                   help="reference to compare with instead of rendering one: .npy image (variance 0) "
+                        "or .npz with 'value' and optionally 'variance'")
     p.add_argument("--out", type=Path, default=Path("out/converge"), help="output folder")
     p.set_defaults(func=_cmd_converge)
 

@@ -111,3 +111,17 @@ def test_demo_runs_its_settings(tmp_path, monkeypatch, capsys):
     page = (tmp_path / "report.html").read_text()
     assert "Convergence report: cornell" in page and "4 x 4" in page
     assert (tmp_path / "images.png").is_file()
+
+
+def test_cli_converge_uses_a_user_supplied_reference(tmp_path, capsys):
+    # The checkerboard's 'importance' estimator is exact (always 2): against a
+    # supplied reference of 2.5 its bias must read exactly -0.5.
+    ref = tmp_path / "ref.npy"
+    np.save(ref, np.array([2.5]))
+    out = tmp_path / "out"
+    assert main(["converge", "checkerboard", "--out", str(out), "--quiet", "--workers", "1",
+                 "--samplers", "random", "--spp", "1,4,16", "--replicates", "4",
+                 "--reference", str(ref)]) == 0
+    with open(out / "results.csv") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["method"] == "importance"]
+    assert rows and all(float(r["bias"]) == -0.5 for r in rows)
