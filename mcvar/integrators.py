@@ -50,7 +50,9 @@ from .geometry import Frame
 from .samplers import SAMPLERS, pixel_samples
 from .scene import Scene
 from .tracer import Tracer
-from .warps import area_to_solid_angle_pdf, square_to_uniform_parallelogram
+from .bsdf import Lambertian
+from .warps import (_square_to_cosine_hemisphere_unchecked, area_to_solid_angle_pdf,
+                    square_to_uniform_parallelogram)
 
 __all__ = ["INTEGRATORS", "HEURISTICS", "Render", "render", "trace_paths"]
 
@@ -309,6 +311,19 @@ class _Wavefront:
             self.light_n = scene.light_normal[0]
             self.light_pa = sh.select_pdf / float(scene.light_area[0])
             self.light_le = scene.light_radiance[0][:, None]
+        # Every material Lambertian, triangles only, one quad light: the trusted
+        # loop of _trace_lambertian (no material sort, no BSDF calls).
+        self.lambertian = (self.single_quad and not self.spheres and self.n_tri > 0
+                           and all(type(m) is Lambertian for m in scene.materials))
+        if self.lambertian:
+            # (s, n, t) of the unflipped frame of every triangle, stacked (9, T)
+            self.frame9 = np.ascontiguousarray(np.concatenate(
+                [self.frame_s[:, 0::2], self.frame_n[:, 0::2], self.frame_t[:, 0::2]]))
+            albedo = np.array([m.albedo for m in scene.materials]).T          # (3, M)
+            self.albedo = np.ascontiguousarray(albedo[:, scene.prim_material])   # (3, T)
+            # albedo / pi * Le of the light, per triangle: NEE's f Le
+            self.f_le = np.ascontiguousarray(self.albedo / np.pi * self.light_le)
+            self.black = ~np.any(self.albedo > 0.0, axis=0)
 
     def geometric_normals(self, tracer, prim, p):
         if not self.spheres:
@@ -413,16 +428,19 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
     sh = _Shading(scene, tracer)
     wf = _Wavefront(scene, tracer, sh)
     nee = nee and sh.n_emitters > 0
+    u = np.asarray(u, dtype=np.float64)
+    limit = RR_MAX_DEPTH if max_depth is None else max_depth
+    if wf.lambertian and _LAMBERTIAN_FAST:
+        return _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, max_depth is None,
+                                 nee, bsdf_hits, mis, weight_fn)
     o = np.array(np.asarray(origins, dtype=np.float64).T, order="C")
     d = np.array(np.asarray(directions, dtype=np.float64).T, order="C")
     n_all = o.shape[1]
-    u = np.asarray(u, dtype=np.float64)
     radiance = np.zeros((3, n_all))
     idx = np.arange(n_all)
     beta = np.ones((3, n_all))
     prev_pdf = np.full(n_all, np.inf)          # inf: camera ray or delta bounce (MIS weight 1)
     rays = 0
-    limit = RR_MAX_DEPTH if max_depth is None else max_depth
     materials = sh.materials
     eps = sh.eps
     k = 0
@@ -512,6 +530,133 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
             idx, o, d = np.take(idx, keep), np.take(o, keep, 1), np.take(d, keep, 1)
             beta, prev_pdf = np.take(beta, keep, 1), np.take(prev_pdf, keep)
     return np.ascontiguousarray(radiance.T), rays
+
+
+#: Use :func:`_trace_lambertian` where it applies (tests switch it off to
+#: compare it with the general loop).
+_LAMBERTIAN_FAST = True
+
+
+def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulette, nee, bsdf_hits, mis,
+                      weight_fn):
+    """The loop of :func:`trace_paths` for scenes of Lambertian triangles lit by one quad light.
+
+    The same estimator as the general loop (the same sample dimensions, the
+    same random-number stream layout, the same MIS weights, Russian roulette
+    and shadow rays), with the BSDF written out: ``f = albedo / pi``,
+    ``p = cos theta / pi`` (so the sampling weight is ``albedo``), sampled by
+    Malley's method through the warps' unchecked kernel on arrays built here.
+    Because no material needs its own call, the rays are not sorted by
+    material; the per-ray state (origin, direction, throughput, previous
+    pdf) lives in one ``(10, n)`` array, so compaction is one ``np.take``.
+    The shading frame is the triangle's unflipped frame with the normal's
+    sign ``sgn = sign(wo . n_g)`` applied to the local ``y`` only (the
+    cosine-weighted density is symmetric in ``x`` and ``z``, so which of the
+    two tangent orientations is used does not change the distribution).
+    """
+    o = np.asarray(origins, dtype=np.float64).T
+    d = np.asarray(directions, dtype=np.float64).T
+    n_all = o.shape[1]
+    radiance = np.zeros((3, n_all))
+    idx = np.arange(n_all)
+    state = np.empty((10, n_all))          # rows: origin (3), direction (3), beta (3), previous pdf
+    state[0:3] = o
+    state[3:6] = d
+    state[6:9] = 1.0
+    state[9] = np.inf                      # camera ray: MIS weight 1
+    eps = sh.eps
+    rays = 0
+    k = 0
+    while idx.size and k < limit:
+        k += 1
+        t, prim = tracer.closest_soa(state[0:3], state[3:6])
+        rays += idx.size
+        if prim.min() < 0:                 # drop the rays that left the scene (no environment)
+            keep = np.flatnonzero(prim >= 0)
+            if keep.size == 0:
+                break
+            state, idx = np.take(state, keep, 1), np.take(idx, keep)
+            t, prim = np.take(t, keep), np.take(prim, keep)
+        m = idx.size
+        o, d, beta, prev_pdf = state[0:3], state[3:6], state[6:9], state[9]
+        p = d * t
+        p += o
+        lit = np.flatnonzero(np.take(wf.emits, prim))
+        if lit.size:
+            pl, dl, ol = p[:, lit].T, d[:, lit].T, o[:, lit].T
+            le = sh.emission(prim[lit], pl, dl)
+            w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], ol, pl),
+                                 nee, bsdf_hits, mis, weight_fn)
+            _accumulate(radiance, idx[lit], beta[:, lit] * le.T * w)
+        if k >= limit:
+            break
+        frame = np.take(wf.frame9, prim, axis=1)
+        fs, fn, ft = frame[0:3], frame[3:6], frame[6:9]
+        sgn = np.sign(_dot(d, fn))
+        np.negative(sgn, out=sgn)          # sign(wo . n_g); 0 (grazing) gives f = 0
+        if k == 1 and u.shape[1] >= 4:
+            uu = np.ascontiguousarray(np.take(u, idx, axis=0)[:, :4].T)
+        else:
+            uu = rng.random((4, m))
+        if nee and k + 1 <= limit:
+            rays += _next_event_lambertian(sh, wf, tracer, p, fn, sgn, prim, beta, uu[0:2], radiance,
+                                           idx, mis, weight_fn)
+        if k + 1 > limit or (k + 1 == limit and not bsdf_hits):
+            break
+        x, y, z = _square_to_cosine_hemisphere_unchecked(uu[2], uu[3])
+        pdf = y * (1.0 / np.pi)
+        ok = y > 0.0
+        ok &= sgn != 0.0
+        y *= sgn
+        beta *= np.take(wf.albedo, prim, axis=1)
+        beta *= ok
+        wi = np.multiply(fs, x, out=state[3:6])        # d is not needed any more
+        wi += fn * y
+        wi += ft * z
+        bmax = beta.max(axis=0)
+        alive = bmax > 0.0
+        if roulette and k >= RR_START_DEPTH:
+            q = np.minimum(bmax, 0.95)
+            survive = rng.random(m) < q
+            beta /= np.where(survive, q, 1.0)
+            alive &= survive
+        # leave on wi's side of the surface: sign(wi . n_g) = sgn for a valid sample
+        np.multiply(fn, sgn * eps, out=state[0:3])
+        state[0:3] += p
+        state[9] = pdf
+        if not alive.all():
+            keep = np.flatnonzero(alive)
+            state, idx = np.take(state, keep, 1), np.take(idx, keep)
+    return np.ascontiguousarray(radiance.T), rays
+
+
+def _next_event_lambertian(sh, wf, tracer, p, fn, sgn, prim, beta, u_light, radiance, idx, mis, weight_fn):
+    """NEE of :func:`_trace_lambertian`: ``beta (albedo / pi) Le cos_i w_light / p_light``
+    over unoccluded samples, with ``p_bsdf = cos_i / pi``. Returns the shadow rays traced."""
+    w, dist, _, pdf_l, _ = wf.sample_light(sh, p, u_light)
+    cos_i = _dot(w, fn)
+    cos_i *= sgn                            # local wi.y in the flipped frame
+    ok = cos_i > 0.0
+    ok &= pdf_l > 0.0
+    ok &= ~np.take(wf.black, prim)
+    go = np.flatnonzero(ok)
+    if go.size == 0:
+        return 0
+    cg, plg, pg = np.take(cos_i, go), np.take(pdf_l, go), np.take(prim, go)
+    scale = cg / plg
+    if mis:
+        scale *= weight_fn(plg, cg * (1.0 / np.pi))
+    contrib = np.take(beta, go, 1)
+    contrib *= np.take(wf.f_le, pg, 1)
+    contrib *= scale
+    side = np.take(sgn, go)
+    origin, d_shadow, tmax = _shadow_rays(np.take(p, go, 1), np.take(fn, go, 1), side, np.take(w, go, 1),
+                                          np.take(dist, go), sh.eps)
+    keys = tracer.shadow_keys(pg, side, np.zeros(go.size, dtype=np.int64))
+    blocked = tracer.occluded_soa(origin, d_shadow, tmax, keys)
+    vis = np.flatnonzero(~blocked)
+    _accumulate(radiance, np.take(idx, np.take(go, vis)), np.take(contrib, vis, 1))
+    return int(go.size)
 
 
 def _emission_weight(k, prev_pdf, light_pdf, nee, bsdf_hits, mis, weight_fn):

@@ -169,14 +169,27 @@ def square_to_uniform_disk_concentric(u) -> np.ndarray:
     array([[1., 0.]])
     """
     u = as_unit_square(u)
-    a = 2.0 * u[:, 0] - 1.0
-    b = 2.0 * u[:, 1] - 1.0
+    x, y = _concentric_disk_unchecked(u[:, 0], u[:, 1])
+    return np.stack([x, y], axis=-1)
+
+
+def _concentric_disk_unchecked(u0, u1):
+    """The concentric map on already-checked 1-D coordinates ``u0, u1`` in
+    [0, 1]: returns ``(x, y)``. The one implementation of the map, shared by
+    :func:`square_to_uniform_disk_concentric` (after validation) and the
+    integrators' wavefront loop (on arrays it built itself)."""
+    a = 2.0 * u0
+    a -= 1.0
+    b = 2.0 * u1
+    b -= 1.0
     first = np.abs(a) > np.abs(b)
-    safe_a = np.where(a == 0.0, 1.0, a)
-    safe_b = np.where(b == 0.0, 1.0, b)
     r = np.where(first, a, b)
-    phi = np.where(first, (np.pi / 4.0) * (b / safe_a), np.pi / 2.0 - (np.pi / 4.0) * (a / safe_b))
-    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+    num = np.where(first, b, a)
+    # r = 0 only when a = b = 0, where num = 0 too: phi = pi / 2, r = 0
+    q = np.divide(num, r, out=np.zeros_like(num), where=r != 0.0)
+    q *= np.pi / 4.0
+    phi = np.where(first, q, np.pi / 2.0 - q)
+    return r * np.cos(phi), r * np.sin(phi)
 
 
 def square_to_uniform_disk_concentric_pdf(p) -> np.ndarray:
@@ -299,10 +312,22 @@ def square_to_cosine_hemisphere(u) -> np.ndarray:
     .. [1] M. Pharr, W. Jakob, G. Humphreys, "Physically Based Rendering",
        4th ed., section A.5.3 (Malley's method), 2023.
     """
-    d = square_to_uniform_disk_concentric(u)
-    x, z = d[:, 0], d[:, 1]
-    y = np.sqrt(np.maximum(0.0, 1.0 - x * x - z * z))
-    return np.stack([x, y, z], axis=-1)
+    u = as_unit_square(u)
+    return np.stack(_square_to_cosine_hemisphere_unchecked(u[:, 0], u[:, 1]), axis=-1)
+
+
+def _square_to_cosine_hemisphere_unchecked(u0, u1):
+    """Malley's method on already-checked 1-D coordinates: ``(x, y, z)``, 1-D
+    each (structure of arrays). The one implementation behind
+    :func:`square_to_cosine_hemisphere`, also called by the integrators on
+    arrays they built themselves (no validation, no (n, 3) stacking)."""
+    x, z = _concentric_disk_unchecked(u0, u1)
+    y = x * x
+    y += z * z
+    np.subtract(1.0, y, out=y)
+    np.maximum(y, 0.0, out=y)
+    np.sqrt(y, out=y)
+    return x, y, z
 
 
 def square_to_cosine_hemisphere_pdf(v) -> np.ndarray:
