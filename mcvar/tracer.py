@@ -49,12 +49,12 @@ class Hit:
 class _Block:
     """One triangle group's stacked maps (rows: b1 of all, b2 of all, h of all)."""
 
-    __slots__ = ("idx", "k", "mat_o", "mat_d", "box", "bits", "col")
+    __slots__ = ("idx", "k", "mat_o", "mat_d", "box", "col8")
 
     def __init__(self, idx, k, mat_o, mat_d, box):
         self.idx, self.k, self.mat_o, self.mat_d, self.box = idx, k, mat_o, mat_d, box
-        self.bits = max(1, (k - 1).bit_length())      # bits of a triangle index within the group
-        self.col = np.arange(k, dtype=np.int64)[:, None]
+        # triangle index within the group, as a uint8 column (None for >= 256 triangles)
+        self.col8 = np.arange(k, dtype=np.uint8)[:, None] if k < 256 else None
 
 
 class Tracer:
@@ -296,19 +296,20 @@ class Tracer:
         if blk.k == 1:
             best = np.where(ok[0], t[0], np.inf)
             prim = np.full(best.shape, blk.idx[0])
-        elif self.dtype == np.float32:
+        elif self.dtype == np.float32 and blk.col8 is not None:
             # argmin over the short axis 0 is slow (NumPy copies to make it
-            # the last axis). Non-negative float32 values order like their
-            # int32 bit patterns, so (bits << b) | j packs distance and
-            # triangle into one int64 whose plain min gives both, exactly
-            # (ties: the lower j, like argmin); about 2.3x faster here.
+            # the last axis). Instead: the row-wise minimum (a fast reduce),
+            # then the triangle as max(j * (t == best)) in uint8, a quarter of
+            # the memory traffic of packing (distance bits << b | j) into
+            # int64 keys (measured: closest hits of 61k secondary rays 11.9 ->
+            # 10.8 ms). Exact distances; among triangles hit at exactly the
+            # same distance (a shared edge) the higher j wins, deterministically.
             np.copyto(t, np.inf, where=~ok)
-            key = t.view(np.int32).astype(np.int64)
-            key <<= blk.bits
-            key |= blk.col
-            low = key.min(axis=0)
-            best = (low >> blk.bits).astype(np.int32).view(np.float32)
-            prim = np.take(blk.idx, low & ((1 << blk.bits) - 1))
+            best = t.min(axis=0)
+            eq = t == best
+            eq = eq.view(np.uint8)
+            eq *= blk.col8
+            prim = np.take(blk.idx, eq.max(axis=0))
         else:
             t = np.where(ok, t, np.inf)
             j = np.argmin(t, axis=0)
