@@ -603,7 +603,7 @@ def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulet
                                            idx, mis, weight_fn)
         if k + 1 > limit or (k + 1 == limit and not bsdf_hits):
             break
-        x, y, z = _square_to_cosine_hemisphere_unchecked(uu[2], uu[3])
+        x, y, z = _square_to_cosine_hemisphere_unchecked(uu[2], uu[3], np.float32)
         pdf = y * (1.0 / np.pi)
         ok = y > 0.0
         ok &= sgn != 0.0

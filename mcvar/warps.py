@@ -173,11 +173,16 @@ def square_to_uniform_disk_concentric(u) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def _concentric_disk_unchecked(u0, u1):
+def _concentric_disk_unchecked(u0, u1, trig=np.float64):
     """The concentric map on already-checked 1-D coordinates ``u0, u1`` in
     [0, 1]: returns ``(x, y)``. The one implementation of the map, shared by
     :func:`square_to_uniform_disk_concentric` (after validation) and the
-    integrators' wavefront loop (on arrays it built itself)."""
+    integrators' wavefront loop (on arrays it built itself).
+
+    ``trig=np.float32`` evaluates ``cos phi`` and ``sin phi`` in single
+    precision (NumPy's SIMD float32 trigonometry: about 20x faster than
+    float64 here; error ~1e-7 in x and y, far below a renderer's noise); the
+    public functions keep float64."""
     a = 2.0 * u0
     a -= 1.0
     b = 2.0 * u1
@@ -189,6 +194,8 @@ def _concentric_disk_unchecked(u0, u1):
     q = np.divide(num, r, out=np.zeros_like(num), where=r != 0.0)
     q *= np.pi / 4.0
     phi = np.where(first, q, np.pi / 2.0 - q)
+    if trig is not np.float64:
+        phi = phi.astype(trig)
     return r * np.cos(phi), r * np.sin(phi)
 
 
@@ -316,12 +323,13 @@ def square_to_cosine_hemisphere(u) -> np.ndarray:
     return np.stack(_square_to_cosine_hemisphere_unchecked(u[:, 0], u[:, 1]), axis=-1)
 
 
-def _square_to_cosine_hemisphere_unchecked(u0, u1):
+def _square_to_cosine_hemisphere_unchecked(u0, u1, trig=np.float64):
     """Malley's method on already-checked 1-D coordinates: ``(x, y, z)``, 1-D
     each (structure of arrays). The one implementation behind
     :func:`square_to_cosine_hemisphere`, also called by the integrators on
-    arrays they built themselves (no validation, no (n, 3) stacking)."""
-    x, z = _concentric_disk_unchecked(u0, u1)
+    arrays they built themselves (no validation, no (n, 3) stacking);
+    ``trig`` as in :func:`_concentric_disk_unchecked`."""
+    x, z = _concentric_disk_unchecked(u0, u1, trig)
     y = x * x
     y += z * z
     np.subtract(1.0, y, out=y)
