@@ -57,6 +57,21 @@ def main(quick: bool = False):
                                       workers=workers, batch_spp=bs)
                 print(f"{integrator:>10} {res:>5} {spp:>4} {precision:>8} {workers:>7} "
                       f"{best / 1e6:>10.3f} M {med / 1e6:>6.3f} M {best * rp / 1e6:>9.3f} M {rp:>9.2f}")
+    # the general loop (material sort, BSDF method calls) against the trusted
+    # Lambertian loop the Cornell box runs by default
+    import mcvar.integrators as integ
+
+    for integrator in ("path", "direct"):
+        rates = {}
+        for fast in (True, False):
+            integ._LAMBERTIAN_FAST = fast
+            try:
+                rates[fast] = _rate(scene, integrator, 64, 16, repeats)
+            finally:
+                integ._LAMBERTIAN_FAST = True
+        print(f"{integrator:>10} 64x64x16 float32, 1 worker: trusted Lambertian loop "
+              f"{rates[True][0] / 1e6:.3f} M (median {rates[True][1] / 1e6:.3f} M), general loop "
+              f"{rates[False][0] / 1e6:.3f} M (median {rates[False][1] / 1e6:.3f} M) paths/s")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
     print("\n== peak memory of one 256 x 256 render (tracemalloc, NumPy buffers included)")
