@@ -335,6 +335,7 @@ class Tracer:
         p_out = np.full(n, -1, dtype=np.int64)
         open_blocks = [b for b in self._blocks if b.box is None]
         boxed, lo, hi = self._boxed
+        in_box = np.empty((len(boxed), n), dtype=bool) if boxed else None
         for s in range(0, n, self.chunk):
             sl = slice(s, min(n, s + self.chunk))
             oc, dc = o4[:, sl], d[:, sl]
@@ -347,17 +348,22 @@ class Tracer:
                 np.copyto(pb, p, where=better)
             if boxed:
                 # all boxes at once, against the closest hit so far (conservative)
-                in_box = self._boxes_hit(lo, hi, oc[:3], dc, tb)
-                for blk, mask in zip(boxed, in_box):
-                    sel = np.flatnonzero(mask)
-                    if sel.size == 0:
-                        continue
-                    tsel = np.take(tb, sel)
-                    t, p = self._closest_block(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1), tsel)
-                    better = t < tsel
-                    tb[sel[better]] = t[better]
-                    pb[sel[better]] = p[better]
-            tb[pb < 0] = np.inf
+                in_box[:, sl] = self._boxes_hit(lo, hi, oc[:3], dc, tb)
+        # Each boxed group on all the rays that cross its box, gathered once
+        # and cut into full chunks: per chunk only a few hundred rays cross a
+        # box, and NumPy's per-call overhead on such short arrays cost more
+        # than the arithmetic (measured: closest hits of 61k secondary Cornell rays 10.6 -> 9.2 ms).
+        for blk, mask in zip(boxed, in_box if boxed else ()):
+            sel_all = np.flatnonzero(mask)
+            for s in range(0, sel_all.size, self.chunk):
+                sel = sel_all[s:s + self.chunk]
+                tsel = np.take(t_out, sel)
+                t, p = self._closest_block(blk, np.take(o4, sel, axis=1), np.take(d, sel, axis=1), tsel)
+                better = t < tsel
+                hit = sel[better]
+                t_out[hit] = t[better]
+                p_out[hit] = p[better]
+        t_out[p_out < 0] = np.inf
         return t_out.astype(np.float64), p_out
 
     def _any_triangles(self, o, d, tmax, keys):
@@ -367,21 +373,22 @@ class Tracer:
         if not blocks:
             return occ
         o4, d, tm = self._as_rays(o, d, tmax)
+        in_box = np.empty((len(blocks), n), dtype=bool)
         for s in range(0, n, self.chunk):
             sl = slice(s, min(n, s + self.chunk))
-            oc, dc, tc, occ_c = o4[:, sl], d[:, sl], tm[sl], occ[sl]
-            in_box = self._boxes_hit(lo, hi, oc[:3], dc, tc)
-            for i, blk in enumerate(blocks):
-                mask = in_box[i]
-                if i:
-                    mask &= ~occ_c                   # any-hit: occluded rays are done
-                sel = np.flatnonzero(mask)
-                if sel.size == 0:
-                    continue
-                t, ok = self._block_t(blk, np.take(oc, sel, axis=1), np.take(dc, sel, axis=1))
-                ok &= t < np.take(tc, sel)
-                blocked = ok.any(axis=0)
-                occ_c[sel[blocked]] = True
+            in_box[:, sl] = self._boxes_hit(lo, hi, o4[:3, sl], d[:, sl], tm[sl])
+        # each group on all the rays that cross its box and are not yet
+        # occluded (any-hit), gathered once and cut into full chunks
+        for i, blk in enumerate(blocks):
+            mask = in_box[i]
+            if i:
+                mask &= ~occ
+            sel_all = np.flatnonzero(mask)
+            for s in range(0, sel_all.size, self.chunk):
+                sel = sel_all[s:s + self.chunk]
+                t, ok = self._block_t(blk, np.take(o4, sel, axis=1), np.take(d, sel, axis=1))
+                ok &= t < np.take(tm, sel)
+                occ[sel[ok.any(axis=0)]] = True
         return occ
 
     def _spheres(self, o, d, tmax):
