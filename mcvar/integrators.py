@@ -559,7 +559,11 @@ def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulet
     n_all = o.shape[1]
     radiance = np.zeros((3, n_all))
     idx = np.arange(n_all)
-    state = np.empty((10, n_all))          # rows: origin (3), direction (3), beta (3), previous pdf
+    # rows: origin (3), direction (3), beta (3), previous pdf; in the ray
+    # geometry's precision (the tracer converts to it anyway), radiance float64
+    dt = tracer.dtype
+    frame9 = wf.frame9.astype(dt)
+    state = np.empty((10, n_all), dtype=dt)
     state[0:3] = o
     state[3:6] = d
     state[6:9] = 1.0
@@ -570,6 +574,7 @@ def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulet
     while idx.size and k < limit:
         k += 1
         t, prim = tracer.closest_soa(state[0:3], state[3:6])
+        t = t.astype(dt, copy=False)
         rays += idx.size
         if prim.min() < 0:                 # drop the rays that left the scene (no environment)
             keep = np.flatnonzero(prim >= 0)
@@ -590,7 +595,7 @@ def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulet
             _accumulate(radiance, idx[lit], beta[:, lit] * le.T * w)
         if k >= limit:
             break
-        frame = np.take(wf.frame9, prim, axis=1)
+        frame = np.take(frame9, prim, axis=1)
         fs, fn, ft = frame[0:3], frame[3:6], frame[6:9]
         sgn = np.sign(_dot(d, fn))
         np.negative(sgn, out=sgn)          # sign(wo . n_g); 0 (grazing) gives f = 0
