@@ -1017,6 +1017,8 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
             raise ValueError(f"max_depth does not apply to the first-hit mode {integrator!r}; got {max_depth}")
     n_pix = size[0] * size[1]
     sizes = _batch_sizes(spp, n_pix, batch_spp, sampler)
+    for b in set(sizes):  # a sampler that cannot make b points fails here, before any work
+        pixel_samples(sampler, 1, b, dim=2, rng=0)
     streams = as_rng(rng).spawn(len(sizes))
     job = _Job(scene, integrator, sampler, size, max_depth, heuristic, precision, token=uuid.uuid4().hex)
     _job_tracer(job)

@@ -340,3 +340,13 @@ def test_trusted_lambertian_loop_agrees_with_the_general_loop(cornell, monkeypat
     if depth is not None:
         n = 16 * 16 * 16
         assert abs(a.rays - b.rays) / n < Z * depth * np.sqrt(2.0 / n), (a.rays, b.rays)
+
+
+def test_batch_sizes_the_sampler_cannot_make_fail_before_any_work(cornell):
+    # 128 is not a perfect square: the jittered sampler cannot stratify a batch
+    # of it, and render says so up front, not from inside a worker process.
+    calls = []
+    with pytest.raises(ValueError, match=r"perfect square.*spp=128"):
+        render(cornell, spp=256, res=4, sampler="jittered", batch_spp=128, rng=1,
+               progress=lambda done, total: calls.append(done))
+    assert calls == []
