@@ -879,15 +879,20 @@ def _close_pool(wait: bool = True) -> None:
         executor.shutdown(wait=wait, cancel_futures=True)
 
 
-def _render_batch(job: _Job, spp: int, rng):
-    """Render ``spp`` samples of every pixel; return (sum, sum of squares, rays)."""
+def _render_batch(job: _Job, spp: int, rng, u=None):
+    """Render ``spp`` samples of every pixel; return (sum, sum of squares, rays).
+
+    ``u`` (n_pix, spp, dim): this batch's slice of the pixels' sample sets;
+    None draws an independent set for the batch from ``rng``.
+    """
     w, h = job.res
     n_pix = w * h
     scene = job.scene
     tracer = _job_tracer(job)
     aov = job.integrator in _AOVS
-    u = pixel_samples(job.sampler, n_pix, spp, dim=2 if aov else SAMPLER_DIM, rng=rng)
-    u = u.reshape(n_pix * spp, -1)
+    if u is None:
+        u = pixel_samples(job.sampler, n_pix, spp, dim=2 if aov else SAMPLER_DIM, rng=rng)
+    u = np.ascontiguousarray(u).reshape(n_pix * spp, -1)
     pixel = np.repeat(np.arange(n_pix), spp)
     d = scene.camera.ray_directions(job.res, pixel, u[:, 0:2])
     o = np.broadcast_to(scene.camera.position, d.shape)
@@ -928,6 +933,29 @@ def _batch_sizes(spp: int, n_pix: int, batch_spp, sampler: str) -> list[int]:
     if spp % b:
         sizes.append(spp % b)
     return sizes
+
+
+#: Largest pixel-sample set (paths) drawn whole: ~100 MB at SAMPLER_DIM = 6.
+SAMPLES_PER_SET = 2 ** 21
+
+
+def _sample_slices(sampler: str, n_pix: int, spp: int, sizes, dim: int, rng):
+    """Per-batch pixel samples that keep the sampler's stratification over all spp.
+
+    For a stratified or QMC sampler whose ``n_pix x spp`` pattern fits
+    :data:`SAMPLES_PER_SET`, each pixel's whole ``spp``-point set is drawn once
+    and the batches trace consecutive slices of it, so a 256-spp Sobol render
+    is one 256-point net per pixel, not sixteen 16-point ones (measured at
+    64 x 64: MSE 7.0e-5 -> 3.0e-5 for path tracing). Partial sets stay
+    unbiased (each point is marginally uniform), so an interrupted render is
+    too. Otherwise (``random``: iid has nothing to keep; or too many samples)
+    returns None for every batch: each draws its own set.
+    """
+    if sampler == "random" or len(sizes) == 1 or n_pix * spp > SAMPLES_PER_SET:
+        return [None] * len(sizes)
+    u = pixel_samples(sampler, n_pix, spp, dim=dim, rng=rng)
+    edges = np.cumsum([0] + list(sizes))
+    return [u[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
 
 
 def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sampler: str = "random",
@@ -1019,7 +1047,9 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
     sizes = _batch_sizes(spp, n_pix, batch_spp, sampler)
     for b in set(sizes):  # a sampler that cannot make b points fails here, before any work
         pixel_samples(sampler, 1, b, dim=2, rng=0)
-    streams = as_rng(rng).spawn(len(sizes))
+    streams = as_rng(rng).spawn(len(sizes) + 1)
+    slices = _sample_slices(sampler, n_pix, spp, sizes, 2 if integrator in _AOVS else SAMPLER_DIM,
+                            streams.pop())
     job = _Job(scene, integrator, sampler, size, max_depth, heuristic, precision, token=uuid.uuid4().hex)
     _job_tracer(job)
 
@@ -1050,11 +1080,12 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
 
     try:
         if workers == 1 or len(sizes) == 1:
-            for k, (b, stream) in enumerate(zip(sizes, streams)):
-                collect(_render_batch(job, b, stream), k)
+            for k, (b, stream, u) in enumerate(zip(sizes, streams, slices)):
+                collect(_render_batch(job, b, stream, u), k)
         else:
             pool = _worker_pool(workers)
-            futures = [pool.submit(_render_batch, job, b, stream) for b, stream in zip(sizes, streams)]
+            futures = [pool.submit(_render_batch, job, b, stream, u)
+                       for b, stream, u in zip(sizes, streams, slices)]
             try:
                 for k, fut in enumerate(futures):
                     collect(fut.result(), k)

@@ -350,3 +350,22 @@ def test_batch_sizes_the_sampler_cannot_make_fail_before_any_work(cornell):
         render(cornell, spp=256, res=4, sampler="jittered", batch_spp=128, rng=1,
                progress=lambda done, total: calls.append(done))
     assert calls == []
+
+
+def test_batches_trace_slices_of_one_stratified_set_per_pixel():
+    # A 64-spp Sobol render traced in four 16-spp batches must still see each
+    # pixel's 64 points as one (0, 6, 2)-net, not four unrelated 16-point nets.
+    from mcvar.discrepancy import is_net
+    from mcvar.integrators import SAMPLES_PER_SET, _sample_slices
+
+    rng = np.random.default_rng(60606)
+    slices = _sample_slices("sobol", 5, 64, [16, 16, 16, 16], 6, rng)
+    assert [s.shape for s in slices] == [(5, 16, 6)] * 4
+    whole = np.concatenate(slices, axis=1)
+    for pixel in whole:
+        assert is_net(pixel[:, 0:2], 6)  # the pixel-position pair
+        assert is_net(pixel[:, 2:4], 6)  # and a padded pair
+    # iid points have nothing to keep, and sets past the budget are drawn per batch
+    assert _sample_slices("random", 5, 64, [16] * 4, 6, rng) == [None] * 4
+    n_pix = SAMPLES_PER_SET // 16 + 1
+    assert _sample_slices("sobol", n_pix, 64, [16] * 4, 6, rng) == [None] * 4
