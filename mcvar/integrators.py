@@ -474,13 +474,8 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
         p = d * t
         p += o
         # -- emission at the hit
-        lit = np.flatnonzero(np.take(wf.emits, prim))
-        if lit.size:
-            pl, dl, ol = p[:, lit].T, d[:, lit].T, o[:, lit].T
-            le = sh.emission(prim[lit], pl, dl)
-            w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], ol, pl),
-                                 nee, bsdf_hits, mis, weight_fn)
-            _accumulate(radiance, idx[lit], beta[:, lit] * le.T * w)
+        _add_hit_emission(wf, sh, k, o, d, p, prim, idx, beta, prev_pdf, radiance,
+                          nee, bsdf_hits, mis, weight_fn)
         if k >= limit:
             break
         # -- shading frame: flip two-sided materials' normal towards wo
@@ -586,13 +581,8 @@ def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulet
         o, d, beta, prev_pdf = state[0:3], state[3:6], state[6:9], state[9]
         p = d * t
         p += o
-        lit = np.flatnonzero(np.take(wf.emits, prim))
-        if lit.size:
-            pl, dl, ol = p[:, lit].T, d[:, lit].T, o[:, lit].T
-            le = sh.emission(prim[lit], pl, dl)
-            w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], ol, pl),
-                                 nee, bsdf_hits, mis, weight_fn)
-            _accumulate(radiance, idx[lit], beta[:, lit] * le.T * w)
+        _add_hit_emission(wf, sh, k, o, d, p, prim, idx, beta, prev_pdf, radiance,
+                          nee, bsdf_hits, mis, weight_fn)
         if k >= limit:
             break
         frame = np.take(frame9, prim, axis=1)
@@ -662,6 +652,19 @@ def _next_event_lambertian(sh, wf, tracer, p, fn, sgn, prim, beta, u_light, radi
     vis = np.flatnonzero(~blocked)
     _accumulate(radiance, np.take(idx, np.take(go, vis)), np.take(contrib, vis, 1))
     return int(go.size)
+
+
+def _add_hit_emission(wf, sh, k, o, d, p, prim, idx, beta, prev_pdf, radiance, nee, bsdf_hits, mis,
+                      weight_fn):
+    """Add the emission found by the rays of segment ``k`` (SoA arrays) at their
+    hits ``p``, weighted by throughput ``beta`` and its MIS weight."""
+    lit = np.flatnonzero(np.take(wf.emits, prim))
+    if lit.size:
+        pl, dl, ol = p[:, lit].T, d[:, lit].T, o[:, lit].T
+        le = sh.emission(prim[lit], pl, dl)
+        w = _emission_weight(k, prev_pdf[lit], lambda: sh.light_pdf_hit(prim[lit], ol, pl),
+                             nee, bsdf_hits, mis, weight_fn)
+        _accumulate(radiance, idx[lit], beta[:, lit] * le.T * w)
 
 
 def _emission_weight(k, prev_pdf, light_pdf, nee, bsdf_hits, mis, weight_fn):
