@@ -897,10 +897,12 @@ def _render_batch(job: _Job, spp: int, rng, u=None):
         u = pixel_samples(job.sampler, n_pix, spp, dim=2 if aov else SAMPLER_DIM, rng=rng)
     u = np.ascontiguousarray(u).reshape(n_pix * spp, -1)
     pixel = np.repeat(np.arange(n_pix), spp)
-    d = scene.camera.ray_directions(job.res, pixel, u[:, 0:2])
+    # (3, n) directions, handed on as their (n, 3) transposed view: the
+    # wavefront loop works in (3, n) and takes them without a copy
+    d = scene.camera.ray_directions_soa(job.res, pixel, u[:, 0:2]).T
     o = np.broadcast_to(scene.camera.position, d.shape)
     if aov:
-        radiance = _first_hit(scene, tracer, np.ascontiguousarray(o), d, job.integrator)
+        radiance = _first_hit(scene, tracer, np.ascontiguousarray(o), np.ascontiguousarray(d), job.integrator)
         rays = n_pix * spp
     else:
         radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=job.integrator,

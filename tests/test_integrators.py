@@ -369,3 +369,20 @@ def test_batches_trace_slices_of_one_stratified_set_per_pixel():
     assert _sample_slices("random", 5, 64, [16] * 4, 6, rng) == [None] * 4
     n_pix = SAMPLES_PER_SET // 16 + 1
     assert _sample_slices("sobol", n_pix, 64, [16] * 4, 6, rng) == [None] * 4
+
+
+def test_camera_soa_directions_are_the_public_ones_transposed():
+    # render() builds camera rays with Camera.ray_directions_soa (3, n); it must be
+    # exactly the public (n, 3) ray_directions, on a non-square image and at the
+    # pixel-sample extremes u, v in {0, 1}
+    cam = load_scene("cornell").camera
+    rng = np.random.default_rng(20241122)
+    res = (8, 4)
+    pix = np.concatenate([[0, 31, 7, 24], rng.integers(0, 32, 200)])
+    uv = rng.random((pix.size, 2))
+    uv[:4] = [(0.0, 0.0), (1.0, 1.0), (1.0, 0.0), (0.0, 1.0)]
+    soa = cam.ray_directions_soa(res, pix, uv)
+    assert soa.shape == (3, pix.size) and soa.flags.c_contiguous
+    np.testing.assert_array_equal(soa.T, cam.ray_directions(res, pix, uv))
+    # unit length to float64 rounding (3 products and a square root: a few ulp)
+    np.testing.assert_allclose(np.einsum("kn,kn->n", soa, soa), 1.0, rtol=0, atol=8 * np.finfo(float).eps)
