@@ -107,6 +107,7 @@ class Tracer:
         self.scene = scene
         self.dtype = np.dtype(dtype)
         self.chunk = check_count(chunk, "chunk")
+        self._box_slice = 4 * self.chunk        # rays per call of the slab test
         self.cull = bool(cull)
         self.epsilon = float(scene.ray_epsilon)
         tri = scene.triangles
@@ -346,9 +347,14 @@ class Tracer:
                 better = t < tb
                 np.copyto(tb, t, where=better)
                 np.copyto(pb, p, where=better)
-            if boxed:
-                # all boxes at once, against the closest hit so far (conservative)
-                in_box[:, sl] = self._boxes_hit(lo, hi, oc[:3], dc, tb)
+        # all boxes at once, against the closest hit so far (conservative), in
+        # slices of 4 chunks: the slab test's temporaries are small and NumPy's
+        # per-call overhead dominated at 2048 rays (measured: 65 536 rays
+        # against the Cornell blocks' boxes 1.19 -> 0.59 ms); elementwise, so
+        # the result does not depend on the slice length
+        for s in range(0, n, self._box_slice) if boxed else ():
+            sl = slice(s, min(n, s + self._box_slice))
+            in_box[:, sl] = self._boxes_hit(lo, hi, o4[:3, sl], d[:, sl], t_out[sl])
         # Each boxed group on all the rays that cross its box, gathered once
         # and cut into full chunks: per chunk only a few hundred rays cross a
         # box, and NumPy's per-call overhead on such short arrays cost more
@@ -374,8 +380,8 @@ class Tracer:
             return occ
         o4, d, tm = self._as_rays(o, d, tmax)
         in_box = np.empty((len(blocks), n), dtype=bool)
-        for s in range(0, n, self.chunk):
-            sl = slice(s, min(n, s + self.chunk))
+        for s in range(0, n, self._box_slice):
+            sl = slice(s, min(n, s + self._box_slice))
             in_box[:, sl] = self._boxes_hit(lo, hi, o4[:3, sl], d[:, sl], tm[sl])
         # each group on all the rays that cross its box and are not yet
         # occluded (any-hit), gathered once and cut into full chunks
