@@ -108,9 +108,13 @@ class Target:
 
 def _integrand_evaluate(problem: str, method: str, sampler: str, spp: int, rng) -> np.ndarray:
     from .examples import PROBLEMS
-    from .samplers import get_sampler
+    from .samplers import DETERMINISTIC, digital_shift, get_sampler
 
     points = get_sampler(sampler)(spp, rng=rng)
+    if sampler in DETERMINISTIC:
+        # the same points for every replicate would make the replicate spread
+        # zero and the error bars meaningless: shift each replicate randomly
+        points = np.minimum(digital_shift(points, rng=rng), np.nextafter(1.0, 0.0))
     contributions = np.asarray(PROBLEMS[problem].methods[method](points), dtype=np.float64)
     return np.array([contributions.mean()])
 

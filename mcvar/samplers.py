@@ -25,6 +25,7 @@ from ._validation import as_points, as_rng, check_choice, check_count, check_pos
 
 __all__ = [
     "SAMPLERS",
+    "DETERMINISTIC",
     "get_sampler",
     "pixel_samples",
     "cranley_patterson",
@@ -627,6 +628,11 @@ SAMPLERS = {
     "sobol": sobol,
     "blue_noise": blue_noise,
 }
+
+#: Samplers whose default options ignore ``rng``: the same points every call.
+#: Independent, unbiased replicates of them need a randomization such as
+#: :func:`digital_shift` (which keeps (0, m, 2)-nets nets).
+DETERMINISTIC = frozenset({"grid", "hammersley", "halton"})
 
 
 def get_sampler(name: str):

@@ -354,3 +354,12 @@ def test_consistency_of_a_scalar_estimator_is_detected_from_few_replicates():
     result = ex.sweep(target, replicates=8, seed=11, executor=ex.SerialExecutor(), progress=False)
     assert result.verdicts["mc"].label == "both"
     assert result.verdicts["single"].label == "unbiased"
+
+
+def test_integrand_sweeps_randomize_deterministic_samplers():
+    # Hammersley ignores rng: without a per-replicate shift every replicate
+    # would be the same number and the variance exactly 0.
+    result = ex.sweep(ex.integrand_target("hemisphere"), methods=["uniform"], samplers=["hammersley"],
+                      spp=[16, 64, 256], replicates=6, seed=5, executor=ex.SerialExecutor(), progress=False)
+    assert all(m.variance > 0 for m in result.metrics)
+    assert result.verdicts["uniform"].unbiased

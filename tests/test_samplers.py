@@ -314,3 +314,9 @@ def test_scrambled_sobol_randomises_every_binary_digit():
     assert np.mean(np.ldexp(pts, 30) % 1.0 != 0.0) > 0.99
     raw = S.sobol(256, rng=20261122, scramble=False)
     assert np.all(np.ldexp(raw, 30) % 1.0 == 0.0)
+
+
+def test_deterministic_names_exactly_the_samplers_that_ignore_rng():
+    for name in NAMES:
+        a, b = S.SAMPLERS[name](64, rng=1), S.SAMPLERS[name](64, rng=2)
+        assert np.array_equal(a, b) == (name in S.DETERMINISTIC), name
