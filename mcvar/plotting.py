@@ -1,18 +1,16 @@
 """Shared matplotlib helpers (layer 7: the only layer that imports matplotlib).
 
-Figures are saved as files a person can open (PNG by default); the non-GUI
-``Agg`` backend is used so that plots work on machines with no screen.
+Figures are saved as files a person can open (PNG by default). The backend is
+left to matplotlib (Agg on a machine with no screen, inline in a notebook):
+setting it on import would hide a notebook's figures.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
 
-matplotlib.use("Agg", force=False)
-import matplotlib.pyplot as plt  # noqa: E402
-
-from .metrics import LogLogFit, loglog_fit  # noqa: E402
+from .metrics import LogLogFit, loglog_fit
 
 __all__ = ["plt", "save_figure", "plot_loglog"]
 
