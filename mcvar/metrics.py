@@ -102,8 +102,17 @@ def loglog_fit(x, y, *, sigma_log=None) -> LogLogFit:
         raise ValueError("x and y must be positive for a log-log fit")
     lx, ly = np.log(x), np.log(y)
     if sigma_log is None:
-        res = stats.linregress(lx, ly)
-        return LogLogFit(float(res.slope), float(res.intercept), float(res.stderr), int(x.size))
+        # ordinary least squares; the slope's error from the residual scatter
+        # (0 for a perfect fit, where scipy's linregress reports NaN)
+        dx = lx - lx.mean()
+        sxx = float(dx @ dx)
+        if not sxx > 0:
+            raise ValueError("x must hold at least two distinct values")
+        slope = float(dx @ (ly - ly.mean())) / sxx
+        intercept = float(ly.mean() - slope * lx.mean())
+        resid = ly - (intercept + slope * lx)
+        stderr = float(np.sqrt(resid @ resid / (x.size - 2) / sxx))
+        return LogLogFit(slope, intercept, stderr, int(x.size))
     s = as_array(sigma_log, "sigma_log", ndim=1)
     if s.shape != x.shape or not np.all(s > 0):
         raise ValueError("sigma_log must be positive with the shape of x")

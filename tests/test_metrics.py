@@ -51,3 +51,10 @@ def test_loglog_fit_rejects_bad_input():
         loglog_fit([1, 2], [1, 2])
     with pytest.raises(ValueError, match="positive"):
         loglog_fit([1, 2, 3], [1, 0, 3])
+
+
+def test_loglog_fit_of_a_perfect_line_has_zero_slope_error_not_nan():
+    fit = loglog_fit([1, 2, 4, 8], [3, 3, 3, 3])
+    assert fit.slope == 0.0 and fit.slope_stderr == 0.0
+    with pytest.raises(ValueError, match="distinct"):
+        loglog_fit([2, 2, 2], [1, 2, 3])
