@@ -18,7 +18,9 @@ with what is needed to trust the number it returns:
   :func:`power_heuristic` or :func:`mis_weights`.
 - :func:`replicate_study` and :func:`convergence_study`: R independent runs
   from ``SeedSequence(seed).spawn(R)``; empirical bias with its interval,
-  variance, MSE, efficiency and the log-log error slope with its uncertainty.
+  variance, MSE, efficiency and the log-log error slope with its uncertainty;
+  :func:`replicate_moments` and :func:`efficiency` (``1 / (MSE x time)``), the
+  one implementation of replicate statistics, shared with :mod:`mcvar.experiments`.
 
 Lecture slides: 'The Monte Carlo Estimator', 'Variance', 'Bias &
 Consistency', 'Consistent Or Unbiased?', 'Multiple Importance Sampling'.
@@ -34,7 +36,8 @@ convergence studies). Every public name is importable from
 from .monte_carlo import Estimate, contribution, estimate, estimate_mean
 from .mis import (balance_heuristic, hemisphere_estimate, mis_estimate, mis_weights, one_sample_mis,
                   one_sample_mis_contribution, power_heuristic)
-from .studies import ConvergenceStudy, ReplicateStudy, convergence_study, replicate_study
+from .studies import (ConvergenceStudy, ReplicateStudy, convergence_study, efficiency, replicate_moments,
+                      replicate_study)
 
 __all__ = [
     "Estimate",
@@ -52,4 +55,6 @@ __all__ = [
     "replicate_study",
     "ConvergenceStudy",
     "convergence_study",
+    "replicate_moments",
+    "efficiency",
 ]

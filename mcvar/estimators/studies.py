@@ -21,6 +21,102 @@ from .monte_carlo import Estimate, _children
 # Replicates: bias, variance, MSE, efficiency, consistency
 # --------------------------------------------------------------------------
 
+def replicate_moments(values, exact=None, exact_variance=0.0) -> tuple:
+    """Variance, squared bias and MSE of R independent replicates of an estimate.
+
+    The one implementation of replicate statistics in mcvar: used by
+    :class:`ReplicateStudy` (scalar estimates) and by
+    :func:`mcvar.experiments.sweep` (images, averaged over pixels).
+
+    Parameters
+    ----------
+    values : array_like, shape (R, ...)
+        R >= 2 independent estimates (each a scalar or an array, e.g. an image).
+    exact : array_like, optional
+        The true value, broadcast to ``values.shape[1:]``. None: only the
+        variance is returned (bias and MSE need the truth).
+    exact_variance : array_like
+        Variance of ``exact`` itself per element (a rendered reference's own
+        noise); 0 for an exact value.
+
+    Returns
+    -------
+    variance, bias2, mse : float
+        Averages over elements of ``s^2`` (the sample variance across
+        replicates, ddof = 1), of ``b^2 - s^2 / R - v`` with
+        ``b = mean_r X_r - exact`` and ``v = exact_variance``, and of their sum
+        (computed as ``mean (X_r - exact)^2 - v``, so equal to
+        ``variance + bias2`` up to rounding).
+        ``bias2`` and ``mse`` are None when ``exact`` is None.
+
+    Notes
+    -----
+    ``E[b^2] = beta^2 + Var(X) / R + v``, so ``bias2`` is unbiased for the
+    squared bias ``beta^2`` (and can be slightly negative when it is 0);
+    ``mse = (R - 1) / R s^2 + b^2 - v``, which for ``v = 0`` equals the plain
+    ``mean_r (X_r - exact)^2`` ('Variance' and 'Bias & Consistency' slides).
+    """
+    x = np.asarray(values, dtype=np.float64)
+    r = x.shape[0] if x.ndim else 0
+    if r < 2:
+        raise ValueError(f"values must hold >= 2 replicates along axis 0; got shape {x.shape}")
+    x = x.reshape(r, -1)
+    s2 = x.var(axis=0, ddof=1)
+    variance = float(s2.mean())
+    if exact is None:
+        return variance, None, None
+    ref = np.broadcast_to(np.asarray(exact, dtype=np.float64).reshape(-1), (x.shape[1],)) \
+        if np.size(exact) in (1, x.shape[1]) else None
+    if ref is None:
+        raise ValueError(f"exact must be a scalar or hold one value per element of an estimate "
+                         f"({x.shape[1]}); got shape {np.shape(exact)}")
+    v = np.reshape(np.asarray(exact_variance, dtype=np.float64), -1)
+    b = x.mean(axis=0) - ref
+    bias2 = float(np.mean(b * b - s2 / r - v))
+    mse = float(np.mean((x - ref) ** 2) - np.mean(v))  # = variance + bias2, without cancellation
+    return variance, bias2, mse
+
+
+def efficiency(mse, seconds) -> float:
+    """Efficiency ``1 / (MSE x seconds)``, the one definition used in mcvar.
+
+    Veach defines the efficiency of an *unbiased* estimator as
+    ``1 / (variance x time)``, where time is the cost of one estimate;
+    for a biased estimator the variance is replaced by the mean squared error
+    ``MSE = variance + bias^2``, which equals the variance when the bias is
+    0. mcvar always uses the MSE (from :func:`replicate_moments`), so biased
+    and unbiased methods are compared on one scale; it therefore needs the
+    true value (or a reference).
+
+    Parameters
+    ----------
+    mse : float
+        Mean squared error of one estimate (may be slightly negative when
+        measured with a bias correction).
+    seconds : float
+        Mean wall time of one estimate, >= 0.
+
+    Returns
+    -------
+    float
+        ``1 / (mse * seconds)``; ``inf`` when ``mse * seconds <= 0`` (an
+        estimator with no measurable error, or no measurable time).
+
+    References
+    ----------
+    .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
+       Simulation", PhD thesis, Stanford University, 1997, sec. 2.4.3.
+    """
+    mse = float(mse)
+    seconds = float(seconds)
+    if not np.isfinite(mse):
+        raise ValueError(f"mse must be finite; got {mse}")
+    if not (np.isfinite(seconds) and seconds >= 0):
+        raise ValueError(f"seconds must be finite and >= 0; got {seconds}")
+    d = mse * seconds
+    return math.inf if d <= 0 else 1.0 / d
+
+
 @dataclass(frozen=True)
 class ReplicateStudy:
     """R independent runs of one estimator at one sample count.
@@ -43,8 +139,11 @@ class ReplicateStudy:
     an estimator is unbiased if ``E[I - I_n] = 0``, even for one sample);
     ``variance = s_V^2`` (ddof 1) with the chi-square interval of a normal
     sample; ``mse = mean((V - exact)^2) = bias^2 + variance`` (up to
-    ``(R-1)/R``); ``efficiency = 1 / (variance * time)``, time per run
-    (Veach's efficiency, thesis section 2.4).
+    ``(R-1)/R``); ``efficiency = 1 / (mse * time)``, time per run
+    (:func:`efficiency`: Veach's efficiency, thesis section 2.4.3, with the
+    MSE in place of the variance so that biased estimators are measured on
+    the same scale; it needs ``exact``). Variance, bias and MSE come from
+    :func:`replicate_moments`.
     """
 
     values: np.ndarray
@@ -62,11 +161,11 @@ class ReplicateStudy:
 
     @property
     def variance(self) -> float:
-        return float(self.values.var(ddof=1))
+        return replicate_moments(self.values)[0]
 
     def _exact(self) -> float:
         if self.exact is None:
-            raise ValueError("exact is None: bias and MSE need the true value")
+            raise ValueError("exact is None: bias, MSE and efficiency need the true value")
         return float(self.exact)
 
     @property
@@ -92,7 +191,7 @@ class ReplicateStudy:
 
     @property
     def mse(self) -> float:
-        return float(np.mean((self.values - self._exact()) ** 2))
+        return replicate_moments(self.values, self._exact())[2]
 
     @property
     def rmse(self) -> float:
@@ -105,9 +204,9 @@ class ReplicateStudy:
 
     @property
     def efficiency(self) -> float:
-        """``1 / (variance * time)``; ``inf`` for a zero-variance estimator."""
-        d = self.variance * self.time
-        return math.inf if d == 0 else 1.0 / d
+        """``1 / (mse * time)`` (:func:`efficiency`); ``inf`` for an exact
+        estimator. Needs ``exact``."""
+        return efficiency(self.mse, self.time)
 
 
 def _open_level(level) -> float:

@@ -9,6 +9,7 @@ from typing import Sequence
 import numpy as np
 from scipy import stats
 
+from ..estimators import efficiency, replicate_moments
 from ..metrics import LogLogFit, loglog_fit, relative_mse
 from .reference import Reference
 
@@ -38,7 +39,8 @@ class ConfigMetrics:
     seconds : float
         Mean wall time of one run (one estimate / image).
     efficiency : float
-        ``1 / (mse * seconds)`` (``inf`` when the measured MSE is <= 0).
+        ``1 / (mse * seconds)`` (:func:`mcvar.estimators.efficiency`, the
+        one definition; ``inf`` when the measured MSE is <= 0).
     bias, bias_stderr, bias_z, bias_dof, bias_pvalue : float
         Bias of the element-mean (mean image value minus the reference's), its
         standard error, Welch t statistic, degrees of freedom and two-sided
@@ -80,12 +82,7 @@ class ConfigMetrics:
 
 def _moments(x, ref, ref_var):
     """variance, bias2, mse of replicates ``x`` (R, P) against ``ref``."""
-    r = x.shape[0]
-    s2 = x.var(axis=0, ddof=1)
-    b = x.mean(axis=0) - ref
-    variance = float(s2.mean())
-    bias2 = float(np.mean(b * b - s2 / r - ref_var))
-    return variance, bias2, variance + bias2
+    return replicate_moments(x, ref, ref_var)
 
 
 def _config_metrics(method, sampler, spp, values, seconds, ref: Reference) -> ConfigMetrics:
@@ -100,7 +97,7 @@ def _config_metrics(method, sampler, spp, values, seconds, ref: Reference) -> Co
     rel = float(np.mean([relative_mse(ref_v, xi, eps=eps) for xi in x])
                 - np.mean(ref_var / (ref_v ** 2 + eps)))
     sec = float(np.mean(seconds))
-    eff = 1.0 / (mse * sec) if mse > 0 and sec > 0 else float("inf")
+    eff = efficiency(mse, sec)
     # Welch t test of the element-mean against the reference's element-mean.
     t_r = x.mean(axis=1)
     a = t_r.var(ddof=1) / r
