@@ -10,7 +10,7 @@ PKG = Path(__file__).resolve().parents[1] / "mcvar"
 LAYERS = {
     "_validation": 0,
     "samplers": 1, "geometry": 1, "metrics": 1, "images": 1,
-    "discrepancy": 2, "warps": 2, "optics": 2,
+    "discrepancy": 2, "warps": 2, "optics": 2, "piecewise": 2,
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
     "examples": 4,
     "scene": 4, "tracer": 4,
