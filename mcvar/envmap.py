@@ -56,7 +56,7 @@ from typing import Literal
 import numpy as np
 
 from . import warps
-from ._validation import as_array, as_directions, as_unit_square, check_choice, check_count, check_positive
+from ._validation import as_array, as_directions, as_rgb, as_unit_square, check_choice, check_count, check_positive
 from .geometry import direction_to_spherical, normalize
 from .images import read_image
 from .piecewise import PiecewiseConstant1D, PiecewiseConstant2D
@@ -505,15 +505,6 @@ def _spherical(cos_t, sin_t, phi):
 # built-in maps (no files needed)
 # --------------------------------------------------------------------------
 
-def _rgb(value, name) -> np.ndarray:
-    arr = as_array(value, name, nonnegative=True)
-    if arr.ndim == 0:
-        return np.full(3, float(arr))
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must be a scalar or an RGB triple; got shape {arr.shape}")
-    return arr
-
-
 def _size(height, width):
     height = check_count(height, "height")
     width = check_count(width, "width")
@@ -583,7 +574,7 @@ def constant(radiance=1.0, *, height: int = 16, width: int = 32) -> EnvironmentM
 
     Its irradiance at any normal is ``pi L`` and its power ``4 pi L``.
     """
-    rgb = _rgb(radiance, "radiance")
+    rgb = as_rgb(radiance, "radiance")
     height, width = _size(height, width)
     return EnvironmentMap(np.broadcast_to(rgb, (height, width, 3)))
 
@@ -592,8 +583,8 @@ def gradient(top=1.0, bottom=0.0, *, height: int = 32, width: int = 64) -> Envir
     """A map blending linearly in ``cos(theta)`` (at row centres) from
     ``bottom`` (-y) to ``top`` (+y): ``L = bottom + (top - bottom) (1 + cos
     theta) / 2``. Scalars or RGB triples, non-negative."""
-    top = _rgb(top, "top")
-    bottom = _rgb(bottom, "bottom")
+    top = as_rgb(top, "top")
+    bottom = as_rgb(bottom, "bottom")
     height, width = _size(height, width)
     t = 0.5 * (1.0 + np.cos(_row_centres(height)))
     rows = bottom + (top - bottom) * t[:, None]
