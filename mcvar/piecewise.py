@@ -66,6 +66,10 @@ from ._validation import as_array, as_points, as_unit_square
 
 __all__ = ["PiecewiseConstant1D", "PiecewiseConstant2D"]
 
+# CDFs up to this many entries are searched without sorting the values first (measured
+# on 10^6 values: direct search is faster up to ~64 entries, sorting wins from ~256 on).
+_SMALL_TABLE = 64
+
 
 def _interval(lo, hi, name: str) -> tuple[float, float]:
     for v, which in ((lo, "min"), (hi, "max")):
@@ -112,7 +116,11 @@ def _upper_bound(cdf, values):
     """C++ ``upper_bound``: the first index whose CDF entry is > each value
     (``np.searchsorted(side='right')``). The values are searched in sorted
     order, which lets NumPy reuse each search's bounds for the next: ~10x
-    faster for 10^6 values in a 4096 x 2048 map's CDF (cache misses)."""
+    faster for 10^6 values in a 4096 x 2048 map's CDF (cache misses). A
+    table of a few entries (a few lights) is searched directly: the sort
+    would cost more than it saves."""
+    if cdf.size <= _SMALL_TABLE:
+        return np.searchsorted(cdf, values, side="right")
     order = np.argsort(values, axis=None)
     flat = values.reshape(-1)
     out = np.empty(flat.shape, dtype=np.int64)
