@@ -90,6 +90,20 @@ class TestPiecewiseConstant1D:
         assert np.all(F1[offset] > 0)
         assert np.all(pdf > 0) and np.all(d.pdf(x) > 0)
 
+    def test_large_table_zero_cells_and_u_one(self):
+        # > 64 cells: the sorted search path (small tables are searched directly)
+        f = np.random.default_rng(21).random(5000)
+        f[::7] = 0.0
+        f[-3:] = 0.0
+        d = PiecewiseConstant1D(f)
+        u = np.clip(np.concatenate([d.cdf, np.nextafter(d.cdf, 1.0), np.random.default_rng(22).random(50_000)]),
+                    0.0, 1.0)
+        x, pdf, offset = d.sample(u)
+        assert np.all(f[offset] > 0) and np.array_equal(d.pdf(x), pdf)
+        assert offset[u == 1.0].tolist() == [4996] * int(np.sum(u == 1.0))
+        expected = np.minimum(np.searchsorted(d.cdf[1:], u, side="right"), 4996)
+        assert np.array_equal(offset, expected)
+
     def test_u_one_and_zero_exactly(self):
         d = PiecewiseConstant1D(F1, 0.0, 11.0)
         x, pdf, offset = d.sample(np.array([0.0, 1.0]))
