@@ -14,23 +14,24 @@ of the existing checks (:func:`~mcvar.testing.chi2_test`,
 :func:`~mcvar.testing.check_unbiased`), with fixed seeds so that a grade is
 reproducible.
 
-=========================  ==============================================================
-grader                     question
-=========================  ==============================================================
-:func:`grade_warp`         does ``sample`` draw from the density ``pdf`` claims (and
-                           survive ``u`` = 0 and 1)?
-:func:`grade_sampler`      is a point set in the unit square, stratified as claimed (or a
-                           (0, m, 2)-net), and uniform over randomizations?
-:func:`grade_bsdf`         are a BSDF's weights ``f cos / pdf`` and does ``sample`` draw
-                           from ``pdf``, at several ``wo``?
-:func:`grade_estimator`    is an estimator unbiased (and has it the claimed variance)?
-:func:`grade_consistent`   does an estimator's error fall as ``n`` grows?
-:func:`grade_pixel_sampler`  does an environment-map sampler pick pixels with probability
-                           proportional to ``L sin(theta)`` (the lecture's 'Creating a PDF')?
-:func:`grade_values`       does a function return known closed-form values?
-:func:`exercise`           the course notebooks' exercises by name
-                           (:mod:`mcvar.testing.exercises`)
-=========================  ==============================================================
+==============================  ==========================================================
+grader                          question
+==============================  ==========================================================
+:func:`grade_warp`              does ``sample`` draw from the density ``pdf`` claims (and
+                                survive ``u`` = 0 and 1)?
+:func:`grade_sampler`           is a point set in the unit square, stratified as claimed
+                                (or a (0, m, 2)-net), and uniform over randomizations?
+:func:`grade_bsdf`              are a BSDF's weights ``f cos / pdf``, and does ``sample``
+                                draw from ``pdf``, at several ``wo``?
+:func:`grade_estimator`         is an estimator unbiased (and of the claimed variance)?
+:func:`grade_consistent`        does an estimator's error fall as ``n`` grows?
+:func:`grade_pixel_sampler`     does an environment-map sampler pick pixels with
+                                probability proportional to ``L sin(theta)`` (the
+                                lecture's 'Creating A PDF')?
+:func:`grade_values`            does a function return known closed-form values?
+:func:`exercise`                the course notebooks' exercises by name
+                                (:mod:`mcvar.testing.exercises`)
+==============================  ==========================================================
 
 A student's code that raises :class:`NotImplementedError` (the stub left
 as is) is graded **NOT ATTEMPTED**; any other exception it raises is a
