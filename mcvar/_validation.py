@@ -22,8 +22,16 @@ __all__ = [
     "as_array",
     "as_points",
     "as_directions",
+    "as_unit_directions",
     "as_unit_square",
+    "UNIT_TOLERANCE",
 ]
+
+#: Largest ``| |v| - 1 |`` accepted where a function needs unit vectors
+#: (:func:`as_unit_directions`): loose enough for vectors normalised in
+#: float32 or rotated by a few frames, tight enough that a direction of length
+#: 2 (or 1.001) is refused instead of silently giving a wrong pdf.
+UNIT_TOLERANCE = 1e-6
 
 
 class NotAnIntegerError(ValueError, TypeError):
@@ -158,3 +166,26 @@ def as_unit_square(u, name: str = "u") -> np.ndarray:
 def as_directions(v, name: str = "directions") -> np.ndarray:
     """Check an array of 3D vectors, shape ``(..., 3)``, finite, as float64."""
     return as_array(v, name, last=3)
+
+
+def as_unit_directions(v, name: str = "directions", *, ndim=None) -> np.ndarray:
+    """Check an array of unit 3D vectors, shape ``(..., 3)``, and return it as float64.
+
+    The one rule for every function that *evaluates* something at directions
+    (warp pdfs and inverses, BSDFs, environment-map lookups): each row must
+    have length 1 within :data:`UNIT_TOLERANCE`, otherwise a ``ValueError``
+    naming ``name``, the first offending row and its length. Nothing is
+    normalised silently: a pdf evaluated at ``2 v`` would be wrong, and
+    normalising would hide the caller's bug. Zero vectors and NaN fail too.
+    """
+    arr = as_array(v, name, ndim=ndim, last=3)
+    if arr.size:
+        length = np.sqrt(np.einsum("...i,...i->...", arr, arr))
+        bad = ~(np.abs(length - 1.0) <= UNIT_TOLERANCE)
+        if np.any(bad):
+            where = np.unravel_index(int(np.argmax(bad)), bad.shape)
+            at = f"row {where[0] if len(where) == 1 else where}" if where else "the vector"
+            raise ValueError(
+                f"{name} must hold unit vectors (| |v| - 1 | <= {UNIT_TOLERANCE}; "
+                f"normalise with mcvar.geometry.normalize); {at} has length {float(length[where])!r}")
+    return arr

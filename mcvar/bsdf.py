@@ -57,6 +57,7 @@ from scipy.special import erf
 from ._validation import (
     as_array,
     as_rng,
+    as_unit_directions,
     as_unit_square,
     check_choice,
     check_count,
@@ -118,7 +119,6 @@ __all__ = [
     "exitant_radiance",
 ]
 
-_UNIT_TOL = 1e-6
 _PRESETS = {"copper": COPPER, "gold": GOLD}
 
 
@@ -127,15 +127,7 @@ _PRESETS = {"copper": COPPER, "gold": GOLD}
 # --------------------------------------------------------------------------
 
 def _directions(v, name: str) -> np.ndarray:
-    arr = as_array(v, name, ndim=2, last=3)
-    if arr.shape[0]:
-        length = np.sqrt(np.einsum("ij,ij->i", arr, arr))
-        bad = ~(np.abs(length - 1.0) <= _UNIT_TOL)
-        if np.any(bad):
-            raise ValueError(
-                f"{name} must hold unit vectors (|length - 1| <= {_UNIT_TOL}); "
-                f"row {int(np.argmax(bad))} has length {length[bad][0]!r}")
-    return arr
+    return as_unit_directions(v, name, ndim=2)
 
 
 def _pair(wo, wi):
@@ -1065,13 +1057,14 @@ def hemisphere_lookup(image, directions) -> np.ndarray:
     image : array_like, shape (H, W, 3)
         Non-negative radiance.
     directions : array_like, shape (n, 3)
+        Unit vectors (``mcvar._validation.UNIT_TOLERANCE``).
 
     Returns
     -------
     ndarray, shape (n, 3)
     """
     image = as_array(image, "image", ndim=3, last=3, nonnegative=True)
-    d = as_array(directions, "directions", ndim=2, last=3)
+    d = as_unit_directions(directions, "directions", ndim=2)
     h, w = image.shape[:2]
     j = np.clip(np.floor((d[:, 0] + 1.0) * 0.5 * w).astype(np.int64), 0, w - 1)
     i = np.clip(np.floor((d[:, 2] + 1.0) * 0.5 * h).astype(np.int64), 0, h - 1)
