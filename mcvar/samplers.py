@@ -48,6 +48,57 @@ ONE_MINUS_EPS = float(np.nextafter(1.0, 0.0))
 
 _FRACTION_BITS = 52  # digital shifts act on the first 52 binary digits
 
+#: Largest working memory, in bytes, that one sampler call may allocate
+#: (4 GiB). A call that would need more raises a ``ValueError`` saying how
+#: much before anything is allocated, instead of dying in a ``MemoryError``
+#: deep inside NumPy. Override it for the session, e.g.
+#: ``mcvar.samplers.MAX_BYTES = 16 * 2**30`` (docs/conventions.md, 'Memory').
+MAX_BYTES = 4 * 2 ** 30
+
+# Peak working memory of each generator, in 8-byte words per output
+# coordinate (output, jitter, index and permutation arrays alive at once):
+# tracemalloc peaks at n = 2^16 (blue noise 2^14), rounded up with a margin
+# (measured: random 1.0, grid 2.1, jittered 3.1, n_rooks 3.0, multi_jittered
+# 1.6, hammersley/halton 3.6, sobol 9.1 (scipy), blue_noise 24, pixel_samples
+# at most 7.0).
+_WORDS_PER_COORD = {"random": 2, "grid": 3, "jittered": 4, "n_rooks": 4, "multi_jittered": 3,
+                    "hammersley": 4, "halton": 4, "sobol": 10, "blue_noise": 32, "pixel_samples": 8}
+
+
+def _fmt_bytes(b: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if b < 1024.0 or unit == "PiB":
+            return f"{b:.3g} {unit}"
+        b /= 1024.0
+    return f"{b:.3g} PiB"  # pragma: no cover
+
+
+def _check_memory(n: int, d: int, sampler: str, *, what: str = "n", sets: int = 1) -> None:
+    """ValueError before allocating if ``sets * n * d`` coordinates need more than :data:`MAX_BYTES`."""
+    words = _WORDS_PER_COORD[sampler]
+    need = 8.0 * words * float(sets) * float(n) * float(d)
+    limit = MAX_BYTES
+    if need > limit:
+        fit = int(limit // (8 * words * sets * d))
+        raise ValueError(
+            f"{sampler}: {what}={n} points in {d} dimensions"
+            + (f" for {sets} pixels" if sets > 1 else "")
+            + f" need about {_fmt_bytes(need)} of working memory, over the limit "
+            f"mcvar.samplers.MAX_BYTES = {_fmt_bytes(limit)}; use a smaller {what} (at most "
+            f"{fit} fits), or draw independent batches (one per rng.spawn stream) and combine "
+            "their estimates, or raise mcvar.samplers.MAX_BYTES if the machine has the memory")
+
+
+def _count(n, d: int, sampler: str) -> int:
+    """A sample count >= 0 (0 gives an empty ``(0, d)`` set, as scipy.stats.qmc) that fits in memory."""
+    n = check_count(n, allow_zero=True)
+    _check_memory(n, d, sampler)
+    return n
+
+
+def _empty(d: int) -> np.ndarray:
+    return np.empty((0, d), dtype=np.float64)
+
 
 def _below_one(x: np.ndarray) -> np.ndarray:
     return np.minimum(x, ONE_MINUS_EPS, out=x)
@@ -343,8 +394,10 @@ def hammersley(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarr
            [0.5 , 0.25],
            [0.75, 0.75]])
     """
-    n = check_count(n)
     d = _check_dim(dim)
+    n = _count(n, d, "hammersley")
+    if n == 0:
+        return _empty(d)
     i = np.arange(n)
     if scramble:
         gen = as_rng(rng)
@@ -381,8 +434,8 @@ def halton(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarray:
     J. H. Halton, "On the efficiency of certain quasi-random sequences of
     points in evaluating multi-dimensional integrals", Numer. Math. 2, 1960.
     """
-    n = check_count(n)
     d = _check_dim(dim)
+    n = _count(n, d, "halton")
     gen = as_rng(rng) if scramble else None
     return _radical_columns(np.arange(n), _primes(d), gen, scramble)
 
@@ -428,8 +481,10 @@ def sobol(n, *, rng=None, dim: int = 2, scramble: bool = True) -> np.ndarray:
     J. Matousek, "On the L2-discrepancy for anchored boxes", J. Complexity
     14(4), 1998.
     """
-    n = check_count(n)
     d = _check_dim(dim)
+    n = _count(n, d, "sobol")
+    if n == 0:
+        return _empty(d)
     if n & (n - 1):
         warnings.warn(f"sobol: n={n} is not a power of 2, so the points are not a (0, m, 2)-net "
                       "and lose balance", UserWarning, stacklevel=2)
@@ -503,11 +558,13 @@ def blue_noise(n, *, rng=None, radius: float = 0.7) -> np.ndarray:
     J. I. Yellott, "Spectral consequences of photoreceptor sampling in the
     rhesus retina", Science 221, 1983.
     """
-    n = check_count(n)
+    n = _count(n, 2, "blue_noise")
     rho = check_positive(radius, "radius")
     if not rho <= 0.85:
         raise ValueError(f"radius must be <= 0.85 (relative to hexagonal packing; random packings "
                          f"jam near 0.77); got {rho}")
+    if n == 0:
+        return _empty(2)
     return _below_one(_poisson_disk(n, as_rng(rng), rho))
 
 
@@ -525,7 +582,8 @@ def random(n, *, rng=None, dim: int = 2) -> np.ndarray:
     >>> random(3, rng=7).shape
     (3, 2)
     """
-    return _random_sets(1, check_count(n), _check_dim(dim), as_rng(rng))[0]
+    d = _check_dim(dim)
+    return _random_sets(1, _count(n, d, "random"), d, as_rng(rng))[0]
 
 
 def grid(n, *, rng=None, dim: int = 2) -> np.ndarray:
@@ -537,7 +595,9 @@ def grid(n, *, rng=None, dim: int = 2) -> np.ndarray:
     otherwise); its star discrepancy decays only like n^-1/2 because whole
     rows of points enter an anchored box together.
     """
-    return _grid_base(check_count(n), _check_dim(dim))
+    d = _check_dim(dim)
+    n = _count(n, d, "grid")
+    return _grid_base(n, d) if n else _empty(d)
 
 
 def jittered(n, *, rng=None, dim: int = 2) -> np.ndarray:
@@ -549,7 +609,9 @@ def jittered(n, *, rng=None, dim: int = 2) -> np.ndarray:
     like n^-2 in 2D instead of n^-1 (Mitchell 1996, "Consequences of
     stratified sampling in graphics", SIGGRAPH). ``n`` must be ``k**dim``.
     """
-    return _jittered_sets(1, check_count(n), _check_dim(dim), as_rng(rng))[0]
+    d = _check_dim(dim)
+    n = _count(n, d, "jittered")
+    return _jittered_sets(1, n, d, as_rng(rng))[0] if n else _empty(d)
 
 
 def n_rooks(n, *, rng=None, dim: int = 2) -> np.ndarray:
@@ -578,7 +640,8 @@ def n_rooks(n, *, rng=None, dim: int = 2) -> np.ndarray:
     P. Shirley, "Discrepancy as a quality measure for sample distributions",
     Eurographics 1991.
     """
-    return _latin_sets(1, check_count(n), _check_dim(dim), as_rng(rng))[0]
+    d = _check_dim(dim)
+    return _latin_sets(1, _count(n, d, "n_rooks"), d, as_rng(rng))[0]
 
 
 def multi_jittered(n, *, rng=None, correlated: bool = True) -> np.ndarray:
@@ -613,7 +676,8 @@ def multi_jittered(n, *, rng=None, correlated: bool = True) -> np.ndarray:
     """
     if not isinstance(correlated, (bool, np.bool_)):
         raise TypeError(f"correlated must be a bool; got {type(correlated).__name__}")
-    return _multi_jittered_sets(1, check_count(n), as_rng(rng), bool(correlated))[0]
+    n = _count(n, 2, "multi_jittered")
+    return _multi_jittered_sets(1, n, as_rng(rng), bool(correlated))[0] if n else _empty(2)
 
 
 #: The samplers by name (the tracer and the reports look them up here).
@@ -742,6 +806,7 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     d = _check_dim(dim)
     if name in ("grid", "jittered"):
         _integer_root(spp, 2, name, "spp")  # clear error before any work
+    _check_memory(spp, max(d, 2), "pixel_samples", what="spp", sets=n_pixels)
     pairs = (d + 1) // 2
     streams = as_rng(rng).spawn(pairs)
     out = np.empty((n_pixels, spp, 2 * pairs))

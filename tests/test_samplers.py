@@ -247,14 +247,43 @@ def test_pixel_samples_odd_dim_and_one_pixel():
 @pytest.mark.parametrize("name", NAMES)
 def test_bad_n(name):
     fn = S.get_sampler(name)
-    with pytest.raises(ValueError, match="n must be >= 1"):
-        fn(0)
-    with pytest.raises(ValueError, match="n must be >= 1"):
+    with pytest.raises(ValueError, match="n must be >= 0"):
         fn(-4)
     with pytest.raises(TypeError, match="n must be an integer"):
         fn(4.5)
     with pytest.raises(TypeError, match="n must be an integer"):
         fn("16")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_n_zero_gives_an_empty_float64_set(name):
+    """As scipy.stats.qmc (``Sobol(2).random(0).shape == (0, 2)``) and docs/conventions.md."""
+    fn = S.get_sampler(name)
+    p = fn(0, rng=3)
+    assert p.shape == (0, 2) and p.dtype == np.float64
+    if name not in ("multi_jittered", "blue_noise"):
+        assert fn(0, rng=3, dim=3).shape == (0, 3)
+    assert p.shape == qmc.Sobol(2, rng=0).random(0).shape
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_sizes_that_cannot_fit_are_refused_before_allocating(name):
+    """2^40 points would need tens of TiB: a ValueError saying how much and what to do."""
+    fn = S.get_sampler(name)
+    with pytest.raises(ValueError, match=rf"{name}: n=1099511627776 points .* need about [0-9.]+ TiB"
+                       r".*MAX_BYTES = 4 GiB.*smaller n \(at most [0-9]+ fits\)"):
+        fn(2 ** 40, rng=1)
+
+
+def test_memory_limit_is_overridable_and_exact(monkeypatch):
+    words = S._WORDS_PER_COORD["random"]
+    fits = 1000
+    monkeypatch.setattr(S, "MAX_BYTES", 8 * words * 2 * fits)
+    assert S.random(fits, rng=1).shape == (fits, 2)  # exactly at the limit: allowed
+    with pytest.raises(ValueError, match=r"at most 1000 fits"):
+        S.random(fits + 1, rng=1)
+    with pytest.raises(ValueError, match=r"pixel_samples: spp=16 points .* for 1000 pixels"):
+        S.pixel_samples("random", 1000, 16, rng=1)
 
 
 @pytest.mark.parametrize("name", ["grid", "jittered"])
