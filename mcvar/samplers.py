@@ -3,9 +3,12 @@
 Every sampler has the signature ``name(n, *, rng=None, **options)`` and returns
 an ``(n, 2)`` float64 array (``(n, dim)`` where a ``dim`` option exists) with
 every coordinate in [0, 1): strictly below 1, so ``floor(u * k)`` never indexes
-past an array. The same ``rng`` (seed or Generator state) gives the same points.
-:data:`SAMPLERS` maps the names to the functions; :func:`get_sampler` looks one
-up; :func:`pixel_samples` draws an independently randomized set per pixel,
+past an array. ``n = 0`` gives an empty ``(0, d)`` array (as
+:mod:`scipy.stats.qmc`); a call needing more than :data:`MAX_BYTES` of memory
+is refused with a ``ValueError`` before anything is allocated. The same
+``rng`` (seed or Generator state) gives the same points. :data:`SAMPLERS`
+maps the names to the functions; :func:`get_sampler` looks one up;
+:func:`pixel_samples` draws an independently randomized set per pixel,
 vectorised over pixels, for the tracer.
 
 The lecture's slides "Uniform / Random / Jittered / N-Rooks / Multi-Jittered /
@@ -644,7 +647,7 @@ def n_rooks(n, *, rng=None, dim: int = 2) -> np.ndarray:
     return _latin_sets(1, _count(n, d, "n_rooks"), d, as_rng(rng))[0]
 
 
-def multi_jittered(n, *, rng=None, correlated: bool = True) -> np.ndarray:
+def multi_jittered(n, *, rng=None, correlated: bool = False) -> np.ndarray:
     """Multi-jittered points: jittered on an nx x ny grid *and* N-rooks at once.
 
     Parameters
@@ -654,10 +657,12 @@ def multi_jittered(n, *, rng=None, correlated: bool = True) -> np.ndarray:
         divisor <= sqrt(n) (a square grid for perfect squares; a prime n
         degenerates to a 1 x n grid, i.e. plain N-rooks).
     correlated : bool
-        True (default): Kensler's correlated multi-jitter, one substratum
-        permutation shared by all columns and one by all rows (lower
-        discrepancy and variance). False: Chiu, Shirley and Wang's original,
-        an independent permutation per column and per row.
+        False (default): Chiu, Shirley and Wang's original, an independent
+        substratum permutation per column and per row. True: Kensler's
+        correlated multi-jitter, one permutation shared by all columns and
+        one by all rows. Which is better depends on the integrand (measured
+        below): the default is the one that is never worse than
+        :func:`jittered`.
 
     Notes
     -----
@@ -666,6 +671,33 @@ def multi_jittered(n, *, rng=None, correlated: bool = True) -> np.ndarray:
     each coarse cell holds one point (jittered) and each of the n fine
     columns and rows holds one point (rooks condition), whatever the
     permutations p, q are (lecture, slide "Multi-Jittered Sampling").
+    The correlated variant is Kensler's construction (his listing's
+    ``permute(row, ny)`` offsets x, ``permute(column, nx)`` offsets y, with
+    a fresh jitter per sample): ``p_i = p`` and ``q_j = q`` for all i, j.
+
+    Variance of the mean of ``exp(xy)`` over 400 replicates (seed
+    20261201; ``tests/test_samplers.py`` checks the ordering by F-tests):
+
+    ======  ==========  ==============  ================
+    n       jittered    uncorrelated    correlated
+    ======  ==========  ==============  ================
+    256     2.0e-6      6.9e-7          1.0e-5
+    1024    1.4e-7      4.9e-8          1.2e-6
+    4096    9.1e-9      2.5e-9          1.6e-7
+    ======  ==========  ==============  ================
+
+    On a smooth integrand the correlated variant is *worse than plain
+    jittering*, and its variance decays like n^-1.5 instead of n^-2: with
+    one shared permutation the y offset ``q(i)`` of a whole column is tied
+    to the column's x position ``i / nx``, so ``sum_i i q(i)`` enters the
+    estimate of any integrand with a mixed derivative ``f_xy`` and its
+    variance, ``~ n^-1.5 / 144`` for ``f = xy``, dominates (independent
+    permutations per row average it out). On the indicator of a disk
+    (radius 0.4, an edge) it is the better one: variance 6.6e-6
+    (correlated) vs 1.4e-5 (uncorrelated and jittered) at n = 1024 over 100
+    replicates, and a lower mean star discrepancy (0.018 vs 0.021 at
+    n = 256, 20 sets). Both variants have the same mean L2 star discrepancy
+    (0.0040 at n = 256, 0.0014 at n = 1024; jittered 0.0063 and 0.0023).
 
     References
     ----------
@@ -724,7 +756,7 @@ def _pixel_pairs(name: str, n_pixels: int, spp: int, rng) -> np.ndarray:
         return _latin_sets(n_pixels, spp, 2, rng)
     if name in ("jittered", "multi_jittered"):  # stratum order -> random order per pixel
         sets = (_jittered_sets(n_pixels, spp, 2, rng) if name == "jittered"
-                else _multi_jittered_sets(n_pixels, spp, rng, True))
+                else _multi_jittered_sets(n_pixels, spp, rng, False))
         return _shuffle(sets, rng)
     if name in ("sobol", "hammersley"):
         base = _sobol_points(spp, 2, False, None) if name == "sobol" else hammersley(spp)
@@ -748,9 +780,13 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     name : str
         A key of :data:`SAMPLERS`.
     n_pixels : int
-        Number of pixels (independent sets).
+        Number of pixels (independent sets), >= 1.
     spp : int
-        Samples per pixel: a perfect square for ``grid`` and ``jittered``.
+        Samples per pixel, >= 1: a perfect square for ``grid`` and
+        ``jittered``. Unlike the samplers (where ``n = 0`` gives an empty
+        set), 0 is refused here: a pixel without samples has no estimate,
+        and an image without pixels is a caller's bug. ``n_pixels * spp *
+        dim`` is checked against :data:`MAX_BYTES`.
     dim : int
         Dimensions per sample (2 for the pixel position, 2 more per bounce...).
     rng : None, int, SeedSequence or Generator
@@ -778,7 +814,7 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     sampler                                 per-pixel set
     ======================================  ==========================================
     random, jittered, n_rooks,              drawn independently for each pixel
-    multi_jittered (correlated)
+    multi_jittered (uncorrelated)
     sobol, hammersley                       one deterministic base set (unscrambled
                                             Sobol', Hammersley) XOR-ed with a random
                                             digital shift per pixel: keeps the
