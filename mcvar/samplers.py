@@ -533,11 +533,11 @@ def blue_noise(n, *, rng=None, radius: float = 0.7) -> np.ndarray:
     rng : None, int, SeedSequence or Generator
         Source of the darts.
     radius : float
-        Relative radius ``rho = r / r_max`` in (0, 0.85], where
+        Requested relative radius ``rho = r / r_max`` in (0, 0.85], where
         ``r_max = sqrt(2 / (sqrt(3) n))`` is the spacing of n points on a
-        hexagonal lattice (the densest packing). 0.7 gives a clear blue-noise
-        spectrum and is reached quickly (maximal random packings jam near
-        rho = 0.77).
+        hexagonal lattice (the densest packing). 0.7 (default) gives a clear
+        blue-noise spectrum; it is also about the largest radius this dart
+        thrower reaches (see the table below): asking for more gives *less*.
 
     Notes
     -----
@@ -545,8 +545,26 @@ def blue_noise(n, *, rng=None, radius: float = 0.7) -> np.ndarray:
     point and no earlier dart of its batch lies within ``r`` (toroidal
     distance, via :class:`scipy.spatial.cKDTree` with ``boxsize=1``). If the
     batches stall (five batches in a row each filling under 5 % of the
-    missing points), ``r`` shrinks by 3 % (so the achieved rho
-    may end slightly below ``radius``). Distances are measured on the torus, so
+    missing points), ``r`` shrinks by 3 % and throwing goes on. Achieved
+    relative radius (minimum toroidal distance / ``r_max``), mean [min, max]
+    over 10 seeds (4 at n = 4096):
+
+    =========  ======================  ======================  ======================
+    radius     n = 64                  n = 1024                n = 4096
+    =========  ======================  ======================  ======================
+    0.65       0.655 [0.651, 0.661]    0.650 [0.650, 0.650]    0.650 [0.650, 0.650]
+    0.70       0.700 [0.680, 0.707]    0.700 [0.700, 0.700]    0.700 [0.700, 0.700]
+    0.75       0.716 [0.670, 0.751]    0.698 [0.685, 0.710]    0.692 [0.670, 0.709]
+    0.80       0.720 [0.691, 0.744]    0.686 [0.668, 0.701]    0.687 [0.669, 0.699]
+    0.85       0.700 [0.668, 0.717]    0.675 [0.655, 0.695]    0.684 [0.670, 0.691]
+    =========  ======================  ======================  ======================
+
+    So up to 0.7 the requested radius is met (for n >= 256 in every run;
+    small sets may end a few percent below), and above about 0.72 the
+    throwing jams and the 3 % steps overshoot: every request between 0.75
+    and 0.85 ends near 0.67-0.72. (Maximal Poisson-disk sets, which fill
+    every gap, reach about 0.75 on average; Lagae and Dutre 2008.)
+    Distances are measured on the torus, so
     the set tiles without seams, Cranley-Patterson shifts keep it blue, and its
     periodogram has no boundary artefacts. The spectrum is isotropic (no
     preferred direction) with a dark centre and a bright ring at the mean
