@@ -179,7 +179,8 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
         (so a BSDF's ``lambda u: bsdf.sample(wo, u)`` works; see
         :func:`bsdf_chi2_test` for BSDFs with failures or delta lobes).
     pdf : callable
-        ``pdf(x)`` gives the density of ``(m, d)`` points, shape ``(m,)``:
+        ``pdf(x)`` gives the density of ``(m, d)`` points, shape ``(m,)``
+        (a scalar or size-1 result, one constant for all, is broadcast):
         per unit area (square, disk) or per steradian (directions). For a
         sampler with failures it is the density of the *valid* samples, which
         integrates to the probability that a sample is valid (< 1).
