@@ -114,6 +114,17 @@ def check_probability(x, name: str) -> float:
     return x
 
 
+class _ComplexInput(TypeError):
+    pass
+
+
+def _real_array(x, dtype):
+    arr = np.asarray(x)
+    if arr.dtype.kind == "c":  # np.asarray(..., float) would drop the imaginary part with a warning
+        raise _ComplexInput
+    return arr.astype(dtype, copy=False)
+
+
 def as_array(x, name: str, *, ndim=None, last=None, finite: bool = True,
              nonnegative: bool = False, dtype=np.float64) -> np.ndarray:
     """Convert ``x`` to a float array and check its shape and values.
@@ -130,9 +141,10 @@ def as_array(x, name: str, *, ndim=None, last=None, finite: bool = True,
         Reject negative entries.
     """
     try:
-        arr = np.asarray(x, dtype=dtype)
+        arr = np.asarray(x, dtype=dtype) if np.dtype(dtype).kind == "c" else _real_array(x, dtype)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be array-like of numbers; got {type(x).__name__}") from exc
+        raise TypeError(f"{name} must be array-like of real numbers; got {type(x).__name__}"
+                        + (" with complex values" if isinstance(exc, _ComplexInput) else "")) from exc
     if ndim is not None and arr.ndim != ndim:
         raise ValueError(f"{name} must have {ndim} dimensions; got shape {arr.shape}")
     if last is not None and (arr.ndim == 0 or arr.shape[-1] != last):

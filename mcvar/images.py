@@ -89,7 +89,10 @@ def srgb_to_linear(values) -> np.ndarray:
     IEC 61966-2-1 [3]_: ``L = V / 12.92`` for ``V <= 0.04045``, else
     ``L = ((V + 0.055) / 1.055)^2.4``.
     """
-    arr = np.asarray(values)
+    try:
+        arr = np.asarray(values)
+    except ValueError as exc:  # ragged nested lists
+        raise TypeError(f"values must be array-like of real numbers; got {type(values).__name__}") from exc
     if arr.dtype == np.uint8:
         v = arr.astype(np.float64) / 255.0
     else:

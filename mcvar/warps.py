@@ -602,10 +602,10 @@ def square_to_beckmann_pdf(v, alpha) -> np.ndarray:
     y = v[..., 1]
     pos = y > 0.0
     ys = np.where(pos, y, 1.0)
-    tan2 = (v[..., 0] ** 2 + v[..., 2] ** 2) / (ys * ys)
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", divide="ignore"):  # y^2 underflowing: tan^2 = inf, pdf 0
+        tan2 = (v[..., 0] ** 2 + v[..., 2] ** 2) / (ys * ys)
         log_pdf = -tan2 / (a * a) - np.log(np.pi) - 2.0 * np.log(a) - 3.0 * np.log(ys)
-        return np.where(pos, np.exp(log_pdf), 0.0)
+    return np.where(pos, np.exp(log_pdf), 0.0)
 
 
 def beckmann_to_square(v, alpha) -> np.ndarray:
@@ -996,4 +996,8 @@ def area_to_solid_angle_pdf(pdf_area, ref_points, light_points, light_normals) -
     # dist^2 / |cos| = dist^3 |n| / |d . n|
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         val = pa * dist2 * np.sqrt(dist2) * nlen / np.where(ok, dn, 1.0)
+    if not np.all(np.isfinite(val[ok])):
+        raise ValueError("the solid-angle pdf pdf_area * dist^2 / |cos| overflows float64 (ref_points "
+                         f"and light_points up to {float(np.sqrt(np.max(dist2))):.3g} apart): "
+                         "check the units of ref_points and light_points")
     return np.where(ok, val, 0.0)
