@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 from scipy import stats
 
-from .._validation import as_directions, as_rng, check_count, check_choice, check_positive
+from .._validation import as_directions, as_rng, as_unit_directions, check_count, check_choice, check_positive
 from ._domains import _DOMAIN_INFO, DOMAINS, Domain, _bounds, _expected_counts, _to_params
 
 __all__ = ["DOMAINS", "Chi2Result", "sidak_significance", "chi2_test", "bsdf_chi2_test"]
@@ -489,8 +489,7 @@ def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
     wo = as_directions(wo, "wo")
     if wo.shape != (3,):
         raise ValueError(f"wo must be one direction, shape (3,); got shape {wo.shape}")
-    if not abs(float(np.dot(wo, wo)) - 1.0) <= 1e-9:
-        raise ValueError(f"wo must be a unit vector; got length {np.linalg.norm(wo):.6g}")
+    wo = as_unit_directions(wo, "wo")  # the one rule for directions (docs/conventions.md)
     transmissive = bool(getattr(bsdf, "transmissive", False))
     if not transmissive and not wo[1] > 0.0:
         raise ValueError(f"wo must lie above the horizon (wo[1] > 0) for a reflection BSDF, where "
