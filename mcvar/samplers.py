@@ -88,7 +88,8 @@ def _check_memory(n: int, d: int, sampler: str, *, what: str = "n", sets: int = 
             + (f" for {sets} pixels" if sets > 1 else "")
             + f" need about {_fmt_bytes(need)} of working memory, over the limit "
             f"mcvar.samplers.MAX_BYTES = {_fmt_bytes(limit)}; use a smaller {what} (at most "
-            f"{fit} fits), or draw independent batches (one per rng.spawn stream) and combine "
+            f"{fit} fits{' at this many pixels, or render fewer pixels at a time' if sets > 1 else ''}), "
+            "or draw independent batches (one per rng.spawn stream) and combine "
             "their estimates, or raise mcvar.samplers.MAX_BYTES if the machine has the memory")
 
 
