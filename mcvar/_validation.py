@@ -14,6 +14,7 @@ import numpy as np
 
 __all__ = [
     "NotAnIntegerError",
+    "UNIT_TOLERANCE",
     "as_rng",
     "check_count",
     "check_choice",
@@ -24,7 +25,6 @@ __all__ = [
     "as_directions",
     "as_unit_directions",
     "as_unit_square",
-    "UNIT_TOLERANCE",
 ]
 
 #: Largest ``| |v| - 1 |`` accepted where a function needs unit vectors
@@ -170,16 +170,6 @@ def as_points(points, name: str = "points", *, d=None, unit: bool = False) -> np
     return arr
 
 
-def as_unit_square(u, name: str = "u") -> np.ndarray:
-    """Check warp input: an ``(n, 2)`` array of points in [0, 1]^2 (1.0 included)."""
-    return as_points(u, name, d=2, unit=True)
-
-
-def as_directions(v, name: str = "directions") -> np.ndarray:
-    """Check an array of 3D vectors, shape ``(..., 3)``, finite, as float64."""
-    return as_array(v, name, last=3)
-
-
 def as_unit_directions(v, name: str = "directions", *, ndim=None) -> np.ndarray:
     """Check an array of unit 3D vectors, shape ``(..., 3)``, and return it as float64.
 
@@ -201,3 +191,14 @@ def as_unit_directions(v, name: str = "directions", *, ndim=None) -> np.ndarray:
                 f"{name} must hold unit vectors (| |v| - 1 | <= {UNIT_TOLERANCE}; "
                 f"normalise with mcvar.geometry.normalize); {at} has length {float(length[where])!r}")
     return arr
+
+
+def as_unit_square(u, name: str = "u") -> np.ndarray:
+    """Check warp input: an ``(n, 2)`` array of points in [0, 1]^2 (1.0 included)."""
+    return as_points(u, name, d=2, unit=True)
+
+
+def as_directions(v, name: str = "directions") -> np.ndarray:
+    """Check an array of 3D vectors, shape ``(..., 3)``, finite, as float64."""
+    return as_array(v, name, last=3)
+

@@ -19,52 +19,6 @@ def test_as_rng_rejects_other_kinds(bad):
         as_rng(bad)
 
 
-def test_check_count():
-    assert check_count(np.int64(7)) == 7
-    assert check_count(0, allow_zero=True) == 0
-    with pytest.raises(ValueError, match="n must be >= 1; got 0"):
-        check_count(0)
-    with pytest.raises(ValueError, match="spp must be >= 1"):
-        check_count(-3, "spp")
-    for bad in (4.0, 2.5, True, "4", None):
-        # the issue's contract (ValueError) and the style guide's (TypeError) both hold
-        with pytest.raises(ValueError, match="n must be an integer"):
-            check_count(bad)
-        with pytest.raises(TypeError, match="n must be an integer"):
-            check_count(bad)
-
-
-def test_as_points_checks_shape_range_and_nan():
-    pts = as_points([[0.0, 1.0], [0.5, 0.25]], unit=True)
-    assert pts.dtype == np.float64 and pts.shape == (2, 2)
-    with pytest.raises(ValueError, match=r"points must have shape \(n, 2\)"):
-        as_points(np.zeros((4, 3)), d=2)
-    with pytest.raises(ValueError, match="points must have 2 dimensions"):
-        as_points(np.zeros(4))
-    with pytest.raises(ValueError, match="finite"):
-        as_points([[np.nan, 0.5]])
-    with pytest.raises(ValueError, match=r"\[0, 1\]"):
-        as_points([[1.5, 0.5]], unit=True)
-    with pytest.raises(ValueError, match="u must"):
-        as_unit_square([[-0.1, 0.5]])
-
-
-def test_scalar_checks():
-    assert check_positive(2, "alpha") == 2.0
-    with pytest.raises(ValueError, match="alpha must be finite and > 0"):
-        check_positive(float("nan"), "alpha")
-    with pytest.raises(ValueError, match="eta"):
-        check_positive(0.0, "eta")
-    assert check_probability(1, "p") == 1.0
-    with pytest.raises(ValueError, match="p must lie in"):
-        check_probability(1.01, "p")
-    assert check_choice("power", "heuristic", ["power", "balance"]) == "power"
-    with pytest.raises(ValueError, match="heuristic must be one of"):
-        check_choice("max", "heuristic", ["power", "balance"])
-    with pytest.raises(ValueError, match=r"wi must have shape \(\.\.\., 3\)"):
-        as_directions(np.zeros((3, 2)), "wi")
-
-
 # ------------------------------------------------ one rule for directions (issue 15)
 
 def _direction_family():
@@ -139,3 +93,50 @@ def test_the_issue_15_examples():
         W.square_to_cosine_hemisphere_pdf([[0.0, 2.0, 0.0]])
     with pytest.raises(ValueError, match="wo must hold unit vectors"):
         W.square_to_ggx_visible(np.full((1, 2), 0.5), [0, 0, 0], 0.3)
+
+
+def test_check_count():
+    assert check_count(np.int64(7)) == 7
+    assert check_count(0, allow_zero=True) == 0
+    with pytest.raises(ValueError, match="n must be >= 1; got 0"):
+        check_count(0)
+    with pytest.raises(ValueError, match="spp must be >= 1"):
+        check_count(-3, "spp")
+    for bad in (4.0, 2.5, True, "4", None):
+        # the issue's contract (ValueError) and the style guide's (TypeError) both hold
+        with pytest.raises(ValueError, match="n must be an integer"):
+            check_count(bad)
+        with pytest.raises(TypeError, match="n must be an integer"):
+            check_count(bad)
+
+
+def test_as_points_checks_shape_range_and_nan():
+    pts = as_points([[0.0, 1.0], [0.5, 0.25]], unit=True)
+    assert pts.dtype == np.float64 and pts.shape == (2, 2)
+    with pytest.raises(ValueError, match=r"points must have shape \(n, 2\)"):
+        as_points(np.zeros((4, 3)), d=2)
+    with pytest.raises(ValueError, match="points must have 2 dimensions"):
+        as_points(np.zeros(4))
+    with pytest.raises(ValueError, match="finite"):
+        as_points([[np.nan, 0.5]])
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        as_points([[1.5, 0.5]], unit=True)
+    with pytest.raises(ValueError, match="u must"):
+        as_unit_square([[-0.1, 0.5]])
+
+
+def test_scalar_checks():
+    assert check_positive(2, "alpha") == 2.0
+    with pytest.raises(ValueError, match="alpha must be finite and > 0"):
+        check_positive(float("nan"), "alpha")
+    with pytest.raises(ValueError, match="eta"):
+        check_positive(0.0, "eta")
+    assert check_probability(1, "p") == 1.0
+    with pytest.raises(ValueError, match="p must lie in"):
+        check_probability(1.01, "p")
+    assert check_choice("power", "heuristic", ["power", "balance"]) == "power"
+    with pytest.raises(ValueError, match="heuristic must be one of"):
+        check_choice("max", "heuristic", ["power", "balance"])
+    with pytest.raises(ValueError, match=r"wi must have shape \(\.\.\., 3\)"):
+        as_directions(np.zeros((3, 2)), "wi")
+
