@@ -201,4 +201,3 @@ def as_unit_square(u, name: str = "u") -> np.ndarray:
 def as_directions(v, name: str = "directions") -> np.ndarray:
     """Check an array of 3D vectors, shape ``(..., 3)``, finite, as float64."""
     return as_array(v, name, last=3)
-

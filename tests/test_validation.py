@@ -139,4 +139,3 @@ def test_scalar_checks():
         check_choice("max", "heuristic", ["power", "balance"])
     with pytest.raises(ValueError, match=r"wi must have shape \(\.\.\., 3\)"):
         as_directions(np.zeros((3, 2)), "wi")
-
