@@ -710,8 +710,15 @@ def multi_jittered(n, *, rng=None, correlated: bool = False) -> np.ndarray:
     one shared permutation the y offset ``q(i)`` of a whole column is tied
     to the column's x position ``i / nx``, so ``sum_i i q(i)`` enters the
     estimate of any integrand with a mixed derivative ``f_xy`` and its
-    variance, ``~ n^-1.5 / 144`` for ``f = xy``, dominates (independent
-    permutations per row average it out). On the indicator of a disk
+    variance dominates (independent permutations per row average it out).
+    For ``f = xy`` and ``n = m^2`` the variance of the correlated estimate
+    is exactly ``(2 m^4 V1 + VZ) / n^6 ~ n^-1.5 / 72``, with
+    ``V1 = m^2 (m - 1) (m + 1)^2 / 144`` the variance of ``sum_i i q(i)``
+    over random permutations (once for x, once for y) and
+    ``VZ = (n - 1) n (2n - 1) / 36 + 7n / 144 + n (n - 1) / 12`` from the
+    jitter; measured over 4000 replicates it agrees within 2.2 % (one
+    standard error) at n = 16 ... 4096, which also checks that this is
+    Kensler's construction and nothing else. On the indicator of a disk
     (radius 0.4, an edge) it is the better one: variance 6.6e-6
     (correlated) vs 1.4e-5 (uncorrelated and jittered) at n = 1024 over 100
     replicates, and a lower mean star discrepancy (0.018 vs 0.021 at

@@ -158,6 +158,23 @@ def test_multi_jittered_variance_claims():
     assert _f_test_p(d_unc.var(ddof=1), d_corr.var(ddof=1), reps) < sig
 
 
+def test_correlated_multi_jittered_variance_closed_form():
+    """For f = xy the correlated variant's variance is exactly (2 m^4 V1 + VZ) / n^6
+    (docstring): a chi-square test of the replicate variance, Sidak over two n."""
+    reps = 400
+    sig = 1.0 - (1.0 - ALPHA) ** 0.5
+    for n, seed in ((256, 32_452_867), (1024, 32_452_909)):
+        m = math.isqrt(n)
+        v1 = m ** 2 * (m - 1) * (m + 1) ** 2 / 144
+        vz = (n - 1) * n * (2 * n - 1) / 36 + 7 * n / 144 + n * (n - 1) / 12
+        exact_var = (2 * m ** 4 * v1 + vz) / n ** 6
+        est = _replicate_means(lambda p: p[:, 0] * p[:, 1], S.multi_jittered, n, reps, seed, correlated=True)
+        assert abs(est.mean() - 0.25) < 5.0 * math.sqrt(exact_var / reps)
+        stat = (reps - 1) * est.var(ddof=1) / exact_var
+        lo, hi = stats.chi2.ppf([sig / 2, 1 - sig / 2], reps - 1)
+        assert lo < stat < hi, (n, est.var(ddof=1), exact_var)
+
+
 @pytest.mark.parametrize("m", range(0, 11))
 def test_hammersley_and_sobol_are_nets(m):
     n = 2 ** m
