@@ -440,6 +440,8 @@ def halton(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarray:
     """
     d = _check_dim(dim)
     n = _count(n, d, "halton")
+    if n == 0:
+        return _empty(d)
     gen = as_rng(rng) if scramble else None
     return _radical_columns(np.arange(n), _primes(d), gen, scramble)
 
