@@ -14,6 +14,7 @@ import numpy as np
 
 __all__ = [
     "NotAnIntegerError",
+    "UNIT_TOLERANCE",
     "as_rng",
     "check_count",
     "check_choice",
@@ -22,9 +23,16 @@ __all__ = [
     "as_array",
     "as_points",
     "as_directions",
+    "as_unit_directions",
     "as_unit_square",
     "as_rgb",
 ]
+
+#: Largest ``| |v| - 1 |`` accepted where a function needs unit vectors
+#: (:func:`as_unit_directions`): loose enough for vectors normalised in
+#: float32 or rotated by a few frames, tight enough that a direction of length
+#: 2 (or 1.001) is refused instead of silently giving a wrong pdf.
+UNIT_TOLERANCE = 1e-6
 
 
 class NotAnIntegerError(ValueError, TypeError):
@@ -107,6 +115,17 @@ def check_probability(x, name: str) -> float:
     return x
 
 
+class _ComplexInput(TypeError):
+    pass
+
+
+def _real_array(x, dtype):
+    arr = np.asarray(x)
+    if arr.dtype.kind == "c":  # np.asarray(..., float) would drop the imaginary part with a warning
+        raise _ComplexInput
+    return arr.astype(dtype, copy=False)
+
+
 def as_array(x, name: str, *, ndim=None, last=None, finite: bool = True,
              nonnegative: bool = False, dtype=np.float64) -> np.ndarray:
     """Convert ``x`` to a float array and check its shape and values.
@@ -123,9 +142,10 @@ def as_array(x, name: str, *, ndim=None, last=None, finite: bool = True,
         Reject negative entries.
     """
     try:
-        arr = np.asarray(x, dtype=dtype)
+        arr = np.asarray(x, dtype=dtype) if np.dtype(dtype).kind == "c" else _real_array(x, dtype)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be array-like of numbers; got {type(x).__name__}") from exc
+        raise TypeError(f"{name} must be array-like of real numbers; got {type(x).__name__}"
+                        + (" with complex values" if isinstance(exc, _ComplexInput) else "")) from exc
     if ndim is not None and arr.ndim != ndim:
         raise ValueError(f"{name} must have {ndim} dimensions; got shape {arr.shape}")
     if last is not None and (arr.ndim == 0 or arr.shape[-1] != last):
@@ -148,6 +168,29 @@ def as_points(points, name: str = "points", *, d=None, unit: bool = False) -> np
         raise ValueError(f"{name} must have shape (n, {d}); got shape {arr.shape}")
     if unit and arr.size and not (np.all(arr >= 0.0) and np.all(arr <= 1.0)):
         raise ValueError(f"{name} must lie in [0, 1]^d; got values in [{arr.min()}, {arr.max()}]")
+    return arr
+
+
+def as_unit_directions(v, name: str = "directions", *, ndim=None) -> np.ndarray:
+    """Check an array of unit 3D vectors, shape ``(..., 3)``, and return it as float64.
+
+    The one rule for every function that *evaluates* something at directions
+    (warp pdfs and inverses, BSDFs, environment-map lookups): each row must
+    have length 1 within :data:`UNIT_TOLERANCE`, otherwise a ``ValueError``
+    naming ``name``, the first offending row and its length. Nothing is
+    normalised silently: a pdf evaluated at ``2 v`` would be wrong, and
+    normalising would hide the caller's bug. Zero vectors and NaN fail too.
+    """
+    arr = as_array(v, name, ndim=ndim, last=3)
+    if arr.size:
+        length = np.sqrt(np.einsum("...i,...i->...", arr, arr))
+        bad = ~(np.abs(length - 1.0) <= UNIT_TOLERANCE)
+        if np.any(bad):
+            where = np.unravel_index(int(np.argmax(bad)), bad.shape)
+            at = f"row {where[0] if len(where) == 1 else where}" if where else "the vector"
+            raise ValueError(
+                f"{name} must hold unit vectors (| |v| - 1 | <= {UNIT_TOLERANCE}; "
+                f"normalise with mcvar.geometry.normalize); {at} has length {float(length[where])!r}")
     return arr
 
 

@@ -58,6 +58,7 @@ from ._validation import (
     as_array,
     as_rgb,
     as_rng,
+    as_unit_directions,
     as_unit_square,
     check_choice,
     check_count,
@@ -119,7 +120,6 @@ __all__ = [
     "exitant_radiance",
 ]
 
-_UNIT_TOL = 1e-6
 _PRESETS = {"copper": COPPER, "gold": GOLD}
 
 
@@ -128,15 +128,7 @@ _PRESETS = {"copper": COPPER, "gold": GOLD}
 # --------------------------------------------------------------------------
 
 def _directions(v, name: str) -> np.ndarray:
-    arr = as_array(v, name, ndim=2, last=3)
-    if arr.shape[0]:
-        length = np.sqrt(np.einsum("ij,ij->i", arr, arr))
-        bad = ~(np.abs(length - 1.0) <= _UNIT_TOL)
-        if np.any(bad):
-            raise ValueError(
-                f"{name} must hold unit vectors (|length - 1| <= {_UNIT_TOL}); "
-                f"row {int(np.argmax(bad))} has length {length[bad][0]!r}")
-    return arr
+    return as_unit_directions(v, name, ndim=2)
 
 
 def _pair(wo, wi):
@@ -466,8 +458,9 @@ def _smith_lambda(w, ax, ay, distribution):
     """Smith's Lambda for direction(s) ``w`` above the surface (Heitz 2014, eqs. 72, 86)."""
     cos2 = w[:, 1] ** 2
     # alpha^2 tan^2(theta) for the alpha projected on w's azimuth
-    a2t2 = np.divide((ax * w[:, 0]) ** 2 + (ay * w[:, 2]) ** 2, cos2,
-                     out=np.full(len(w), np.inf), where=cos2 > 0.0)
+    with np.errstate(over="ignore"):  # a grazing w: inf, Lambda = inf, G = 0
+        a2t2 = np.divide((ax * w[:, 0]) ** 2 + (ay * w[:, 2]) ** 2, cos2,
+                         out=np.full(len(w), np.inf), where=cos2 > 0.0)
     if distribution == "ggx":
         return 0.5 * (np.sqrt(1.0 + a2t2) - 1.0)         # inf at grazing
     lam = np.where(np.isinf(a2t2), np.inf, 0.0)          # 0 at normal incidence
@@ -581,10 +574,11 @@ class Microfacet(BSDF):
 
     def _eval(self, wo, wi):
         co, ci = wo[:, 1], wi[:, 1]
-        ok = (co > 0.0) & (ci > 0.0)
+        denom = 4.0 * co * ci
+        ok = (co > 0.0) & (ci > 0.0) & (denom > 0.0)  # cosines so small their product underflows: 0
         h = self._half(wo, wi)
         g = 1.0 / (1.0 + self._lambda(wo) + self._lambda(wi))
-        value = np.divide(self._ndf(h) * g, 4.0 * co * ci, out=np.zeros(len(wo)), where=ok)
+        value = np.divide(self._ndf(h) * g, denom, out=np.zeros(len(wo)), where=ok)
         return self.fresnel(dot(wo, h)) * value[:, None]
 
     def _pdf(self, wo, wi):
@@ -602,13 +596,15 @@ class Microfacet(BSDF):
         wi /= np.sqrt(np.einsum("ij,ij->i", wi, wi))[:, None]
         co, ci = wo[:, 1], wi[:, 1]
         pdf = np.divide(self._h_pdf(h, wo_up), 4.0 * oh, out=np.zeros(len(wo)), where=oh > 0.0)
-        ok = (co > 0.0) & (ci > 0.0) & (oh > 0.0) & (pdf > 0.0)
         lam_o = self._lambda(wo)
+        # a wo so close to the horizon that cos_o^2 underflows has Lambda = inf and
+        # G1 = G2 = 0 (eval is 0 there): a failed sample, not inf / inf = NaN
+        ok = (co > 0.0) & (ci > 0.0) & (oh > 0.0) & (pdf > 0.0) & np.isfinite(lam_o)
         g2 = 1.0 / (1.0 + lam_o + self._lambda(wi))
         if self.distribution == "ggx":      # f cos / pdf = F G2 / G1(wo)
             scale = np.where(ok, g2 * (1.0 + np.where(ok, lam_o, 0.0)), 0.0)
         else:                               # f cos / pdf = F G2 |wo.h| / (cos_o cos_h)
-            scale = np.divide(g2 * oh, co * h[:, 1], out=np.zeros(len(wo)), where=ok)
+            scale = np.divide(g2 * oh, co * h[:, 1], out=np.zeros(len(wo)), where=ok & (co * h[:, 1] > 0.0))
         weight = np.where(ok[:, None], self.fresnel(oh) * np.where(ok, scale, 0.0)[:, None], 0.0)
         return wi, weight, np.where(ok, pdf, 0.0), np.zeros(len(wo), dtype=bool)
 
@@ -1054,13 +1050,14 @@ def hemisphere_lookup(image, directions) -> np.ndarray:
     image : array_like, shape (H, W, 3)
         Non-negative radiance.
     directions : array_like, shape (n, 3)
+        Unit vectors (``mcvar._validation.UNIT_TOLERANCE``).
 
     Returns
     -------
     ndarray, shape (n, 3)
     """
     image = as_array(image, "image", ndim=3, last=3, nonnegative=True)
-    d = as_array(directions, "directions", ndim=2, last=3)
+    d = as_unit_directions(directions, "directions", ndim=2)
     h, w = image.shape[:2]
     j = np.clip(np.floor((d[:, 0] + 1.0) * 0.5 * w).astype(np.int64), 0, w - 1)
     i = np.clip(np.floor((d[:, 2] + 1.0) * 0.5 * h).astype(np.int64), 0, h - 1)

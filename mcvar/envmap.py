@@ -56,7 +56,7 @@ from typing import Literal
 import numpy as np
 
 from . import warps
-from ._validation import as_array, as_directions, as_rgb, as_unit_square, check_choice, check_count, check_positive
+from ._validation import as_array, as_rgb, as_unit_directions, as_unit_square, check_choice, check_count, check_positive
 from .geometry import direction_to_spherical, normalize
 from .images import read_image
 from .piecewise import PiecewiseConstant1D, PiecewiseConstant2D
@@ -208,9 +208,10 @@ class EnvironmentMap:
     # ------------------------------------------------------------------
     def direction_to_pixel(self, directions) -> tuple[np.ndarray, np.ndarray]:
         """Row and column ``(i, j)`` (int arrays, shape ``(...)``) of the
-        pixel each direction falls in (nearest lookup). Directions need not
-        be normalised; zero vectors are a ``ValueError``."""
-        theta, phi = direction_to_spherical(as_directions(directions, "directions"))
+        pixel each direction falls in (nearest lookup). Directions must be
+        unit vectors (``mcvar._validation.UNIT_TOLERANCE``), else a
+        ``ValueError`` naming ``directions``."""
+        theta, phi = direction_to_spherical(as_unit_directions(directions, "directions"))
         return self._rows(theta), self._cols(phi)
 
     def pixel_to_direction(self, i, j) -> np.ndarray:
@@ -241,8 +242,9 @@ class EnvironmentMap:
         Parameters
         ----------
         directions : array_like, shape (..., 3)
-            World directions (+y up), pointing away from the scene towards
-            the map; need not be normalised.
+            World unit directions (+y up), pointing away from the scene
+            towards the map (``ValueError`` naming ``directions`` if a length
+            differs from 1 by more than ``mcvar._validation.UNIT_TOLERANCE``).
         interpolation : {'nearest', 'bilinear'}
             ``'nearest'``: the value of the pixel the direction falls in
             (piecewise constant; the radiance the importance pdfs are built
@@ -250,7 +252,7 @@ class EnvironmentMap:
             wrapping in phi and clamping in theta (no pole leakage).
         """
         check_choice(interpolation, "interpolation", INTERPOLATIONS)
-        theta, phi = direction_to_spherical(as_directions(directions, "directions"))
+        theta, phi = direction_to_spherical(as_unit_directions(directions, "directions"))
         if interpolation == "nearest":
             return self.image[self._rows(theta), self._cols(phi)]
         h, w = self.height, self.width
@@ -387,10 +389,11 @@ class EnvironmentMap:
         ``'uniform'``: ``1 / (4 pi)``. Importance methods: ``P_ij / Omega_i``
         for the pixel ``(i, j)`` the direction falls in; exactly 0 in pixels
         of zero luminance. Both importance methods return the same values
-        (to rounding), each from its own tables.
+        (to rounding), each from its own tables. ``directions`` must be unit
+        vectors, as for :meth:`radiance`.
         """
         check_choice(method, "method", METHODS)
-        dirs = as_directions(directions, "directions")
+        dirs = as_unit_directions(directions, "directions")
         table = None if method == "uniform" else self._fallback(method)
         if table is None:
             return warps.square_to_uniform_sphere_flip_pdf(dirs)
@@ -447,7 +450,7 @@ class EnvironmentMap:
         Cost ``O(H W nodes)``, computed a band of rows at a time.
         """
         nodes = check_count(nodes, "nodes")
-        n = normalize(as_array(normal, "normal", ndim=1, last=3))
+        n = normalize(as_array(normal, "normal", ndim=1, last=3), name="normal")
         a = float(n[1])
         s = math.hypot(n[0], n[2])
         phi_n = math.atan2(n[2], n[0])
@@ -610,7 +613,7 @@ def sky_with_sun(*, sun_direction=(0.45, 0.8, 0.4), sun_radius_deg: float = 2.0,
     if not radius < math.pi / 2:
         raise ValueError(f"sun_radius_deg must be < 90; got {sun_radius_deg}")
     sun_radiance = check_positive(sun_radiance, "sun_radiance")
-    sun = normalize(as_array(sun_direction, "sun_direction", ndim=1, last=3))
+    sun = normalize(as_array(sun_direction, "sun_direction", ndim=1, last=3), name="sun_direction")
     cos_t = np.cos(_row_centres(height))
     horizon = np.array([0.8, 0.85, 0.9])
     zenith = np.array([0.25, 0.45, 0.9])
@@ -650,7 +653,7 @@ def sparse_lights(*, directions=None, radius_deg: float = 3.0, radiance: float =
     radiance = check_positive(radiance, "radiance")
     background = check_positive(background, "background", allow_zero=True)
     dirs = SPARSE_LIGHT_DIRECTIONS if directions is None else directions
-    dirs = normalize(as_array(dirs, "directions", ndim=2, last=3))
+    dirs = normalize(as_array(dirs, "directions", ndim=2, last=3), name="directions")
     tints = np.array([[1.0, 1.0, 1.0], [1.0, 0.8, 0.55], [0.6, 0.8, 1.0]])
     values = radiance * tints[np.arange(len(dirs)) % 3]
     image = np.full((height, width, 3), background)

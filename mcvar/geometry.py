@@ -37,12 +37,12 @@ def norm(v) -> np.ndarray:
     return np.sqrt(dot(v, v))
 
 
-def normalize(v) -> np.ndarray:
-    """Unit vectors along ``v``; a zero vector is a ``ValueError`` (never NaN)."""
+def normalize(v, *, name: str = "v") -> np.ndarray:
+    """Unit vectors along ``v``; a zero vector is a ``ValueError`` naming ``name`` (never NaN)."""
     v = np.asarray(v, dtype=np.float64)
     length = norm(v)
     if np.any(~(length > 0)):
-        raise ValueError("v must not contain zero-length (or NaN) vectors")
+        raise ValueError(f"{name} must not contain zero-length (or NaN) vectors")
     return v / length[..., None]
 
 
@@ -59,16 +59,16 @@ def spherical_to_direction(theta, phi) -> np.ndarray:
     return np.stack([s * np.cos(phi), np.cos(theta), s * np.sin(phi)], axis=-1)
 
 
-def direction_to_spherical(v):
+def direction_to_spherical(v, *, name: str = "v"):
     """Inverse of :func:`spherical_to_direction`.
 
     Returns ``(theta, phi)`` with ``theta`` in [0, pi] and ``phi`` in
     [0, 2 pi). The input need not be normalised; it must not be zero.
     """
-    v = as_directions(v, "v")
+    v = as_directions(v, name)
     length = norm(v)
     if np.any(~(length > 0)):
-        raise ValueError("v must not contain zero-length vectors")
+        raise ValueError(f"{name} must not contain zero-length vectors")
     y = np.clip(v[..., 1] / length, -1.0, 1.0)
     theta = np.arccos(y)
     phi = np.arctan2(v[..., 2], v[..., 0])
@@ -106,7 +106,7 @@ class Frame:
     __slots__ = ("s", "n", "t")
 
     def __init__(self, normal):
-        n = normalize(as_directions(normal, "normal"))
+        n = normalize(as_directions(normal, "normal"), name="normal")
         x, y, z = n[..., 0], n[..., 1], n[..., 2]
         # Duff et al.'s basis around an axis, applied to the cyclic permutation
         # (z, x, y) of the normal so that the normal plays local +y; cyclic

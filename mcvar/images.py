@@ -16,7 +16,7 @@ Every image is an ``(H, W, 3)`` array with **row 0 at the top**, as in
 ``docs/conventions.md``. :func:`read_image` returns float64; a file that cannot
 be decoded (truncated, corrupt, or another format under the suffix) is a
 ``ValueError`` naming the file, never a silently black image; a missing file is
-the usual :class:`FileNotFoundError`.
+the usual :class:`FileNotFoundError`, a directory an :class:`IsADirectoryError`.
 
 Radiance ``.hdr`` is read and written here because no installed library does
 it without a binary download: imageio's RGBE support lives in its FreeImage
@@ -89,7 +89,10 @@ def srgb_to_linear(values) -> np.ndarray:
     IEC 61966-2-1 [3]_: ``L = V / 12.92`` for ``V <= 0.04045``, else
     ``L = ((V + 0.055) / 1.055)^2.4``.
     """
-    arr = np.asarray(values)
+    try:
+        arr = np.asarray(values)
+    except ValueError as exc:  # ragged nested lists
+        raise TypeError(f"values must be array-like of real numbers; got {type(values).__name__}") from exc
     if arr.dtype == np.uint8:
         v = arr.astype(np.float64) / 255.0
     else:
@@ -559,11 +562,16 @@ def read_image(path) -> np.ndarray:
     ------
     FileNotFoundError
         The file does not exist.
+    IsADirectoryError
+        ``path`` names a directory.
     ValueError
         The file cannot be decoded (truncated, corrupt, another format under
         this suffix, wrong shape), or holds NaN or Inf. The message names the
         file.
     """
+    if isinstance(path, (str, os.PathLike)) and pathlib.Path(path).is_dir():
+        raise IsADirectoryError(f"path {str(path)!r} is a directory, not an image file: give the "
+                                f"path of a file inside it ending in one of {SUFFIXES}")
     path, suffix = _suffix(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such image file: {path}")

@@ -12,7 +12,7 @@ fresnel_dielectric`` is the same function).
 
 Conventions (docs/conventions.md)
 ---------------------------------
-* Surface-local space: the normal is **+y**; directions ``(..., 3)`` float64
+* Surface-local space: the normal is **+y**; directions ``(..., 3)`` float64 unit vectors
   point **away** from the surface on the side they lie on.
 * The medium of index ``eta_i`` lies on the +y side, ``eta_t`` on the -y
   side. A direction with ``y < 0``, or a negative ``cos_i``, means the light
@@ -26,7 +26,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._validation import as_array, check_choice, check_positive
+from ._validation import as_array, as_unit_directions, check_choice, check_positive
 from .geometry import dot
 
 __all__ = [
@@ -66,7 +66,7 @@ def reflect(w, normal=None) -> np.ndarray:
     Parameters
     ----------
     w : array_like, shape (..., 3)
-        Directions pointing away from the surface.
+        Unit directions pointing away from the surface.
     normal : array_like, shape (..., 3), optional
         Unit normals (e.g. microfacet half vectors); default +y.
 
@@ -76,10 +76,10 @@ def reflect(w, normal=None) -> np.ndarray:
         ``-w + 2 (w . n) n``, the lecture's 'Reflective Material' formula;
         for ``n = +y`` simply ``(-x, y, -z)``.
     """
-    w = as_array(w, "w", last=3)
+    w = as_unit_directions(w, "w")
     if normal is None:
         return w * _FLIP_XZ
-    n = as_array(normal, "normal", last=3)
+    n = as_unit_directions(normal, "normal")
     return 2.0 * dot(w, n)[..., None] * n - w
 
 
@@ -106,7 +106,7 @@ def refract(w, eta_i: float, eta_t: float):
     ``cos theta_t = sqrt(1 - r^2 (1 - c^2))`` (lecture, 'Refractive Material')
     and ``wt = -r w + (r c - cos theta_t) s y``.
     """
-    w = as_array(w, "w", last=3)
+    w = as_unit_directions(w, "w")
     eta_i = check_positive(eta_i, "eta_i")
     eta_t = check_positive(eta_t, "eta_t")
     s = np.where(w[..., 1] >= 0.0, 1.0, -1.0)

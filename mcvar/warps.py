@@ -12,7 +12,10 @@ Every family is three functions, named as in Mitsuba and Nori:
 
 Directions are ``(n, 3)`` unit vectors in the lecture's surface-local space
 ('Change of Syntax' slide): the normal is **+y**, polar angle ``theta`` from
-+y and azimuth ``phi`` from +x towards +z (``docs/conventions.md``). To sample
++y and azimuth ``phi`` from +x towards +z (``docs/conventions.md``). Every
+pdf and inverse that takes directions requires unit vectors (length within
+``mcvar._validation.UNIT_TOLERANCE`` of 1) and raises a ``ValueError`` naming
+the argument otherwise: nothing is normalised silently. To sample
 about another axis, warp in local space and move the result with
 :class:`mcvar.geometry.Frame`.
 
@@ -25,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_array, as_directions, as_unit_square, check_positive
+from ._validation import as_array, as_directions, as_unit_directions, as_unit_square, check_positive
 from .geometry import normalize
 
 __all__ = [
@@ -110,8 +113,10 @@ def _stack_u(u0, u1) -> np.ndarray:
     return np.stack([np.clip(u0, 0.0, 1.0), np.clip(u1, 0.0, 1.0)], axis=-1)
 
 
-def _dirs(v, name="v") -> np.ndarray:
-    return as_directions(v, name)
+def _dirs(v, name="v", ndim=None) -> np.ndarray:
+    """Directions at which a pdf or an inverse is evaluated: unit vectors
+    (docs/conventions.md, 'Directions and frames'), else a ValueError naming ``name``."""
+    return as_unit_directions(v, name, ndim=ndim)
 
 
 def _points2(p, name="p") -> np.ndarray:
@@ -283,14 +288,14 @@ def square_to_uniform_hemisphere(u) -> np.ndarray:
 
 def square_to_uniform_hemisphere_pdf(v) -> np.ndarray:
     """``1 / (2 pi)`` per steradian for ``v[..., 1] >= 0`` (the horizon
-    included), else 0. ``v`` is assumed to be of unit length."""
+    included), else 0."""
     v = _dirs(v)
     return np.where(v[..., 1] >= 0.0, _INV_TWO_PI, 0.0)
 
 
 def uniform_hemisphere_to_square(v) -> np.ndarray:
     """Inverse of :func:`square_to_uniform_hemisphere`: ``u = (cos(theta), phi / (2 pi))``."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     return _stack_u(v[:, 1], _azimuth_to_u(v[:, 0], v[:, 2]))
 
 
@@ -348,7 +353,7 @@ def square_to_cosine_hemisphere_pdf(v) -> np.ndarray:
 def cosine_hemisphere_to_square(v) -> np.ndarray:
     """Inverse of :func:`square_to_cosine_hemisphere`: project to the disk,
     then invert the concentric map."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     return uniform_disk_concentric_to_square(v[:, [0, 2]])
 
 
@@ -374,14 +379,14 @@ def square_to_uniform_sphere(u) -> np.ndarray:
 
 
 def square_to_uniform_sphere_pdf(v) -> np.ndarray:
-    """``1 / (4 pi)`` per steradian everywhere (``v`` assumed unit length)."""
+    """``1 / (4 pi)`` per steradian everywhere."""
     v = _dirs(v)
     return np.full(v.shape[:-1], _INV_FOUR_PI)
 
 
 def uniform_sphere_to_square(v) -> np.ndarray:
     """Inverse of :func:`square_to_uniform_sphere`."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     return _stack_u(0.5 * (1.0 - v[:, 1]), _azimuth_to_u(v[:, 0], v[:, 2]))
 
 
@@ -427,7 +432,7 @@ def square_to_uniform_sphere_flip_pdf(v) -> np.ndarray:
 
 def uniform_sphere_flip_to_square(v) -> np.ndarray:
     """Inverse of :func:`square_to_uniform_sphere_flip`."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     folded = v.copy()
     folded[:, 1] = np.abs(v[:, 1])
     h = uniform_hemisphere_to_square(folded)
@@ -483,7 +488,7 @@ def square_to_uniform_cone_pdf(v, cos_theta_max) -> np.ndarray:
 
 def uniform_cone_to_square(v, cos_theta_max) -> np.ndarray:
     """Inverse of :func:`square_to_uniform_cone`."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     c = _cos_max(cos_theta_max)
     return _stack_u((1.0 - v[:, 1]) / (1.0 - c), _azimuth_to_u(v[:, 0], v[:, 2]))
 
@@ -536,7 +541,7 @@ def square_to_phong_lobe_pdf(v, exponent) -> np.ndarray:
 
 def phong_lobe_to_square(v, exponent) -> np.ndarray:
     """Inverse of :func:`square_to_phong_lobe`: ``u0 = cos(theta)^(k + 1)``."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     k = _exponent(exponent)
     return _stack_u(np.power(np.maximum(v[:, 1], 0.0), k + 1.0), _azimuth_to_u(v[:, 0], v[:, 2]))
 
@@ -597,15 +602,15 @@ def square_to_beckmann_pdf(v, alpha) -> np.ndarray:
     y = v[..., 1]
     pos = y > 0.0
     ys = np.where(pos, y, 1.0)
-    tan2 = (v[..., 0] ** 2 + v[..., 2] ** 2) / (ys * ys)
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", divide="ignore"):  # y^2 underflowing: tan^2 = inf, pdf 0
+        tan2 = (v[..., 0] ** 2 + v[..., 2] ** 2) / (ys * ys)
         log_pdf = -tan2 / (a * a) - np.log(np.pi) - 2.0 * np.log(a) - 3.0 * np.log(ys)
-        return np.where(pos, np.exp(log_pdf), 0.0)
+    return np.where(pos, np.exp(log_pdf), 0.0)
 
 
 def beckmann_to_square(v, alpha) -> np.ndarray:
     """Inverse of :func:`square_to_beckmann`: ``u0 = 1 - exp(-tan^2(theta) / alpha^2)``."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     a = _alpha(alpha, "alpha")
     y = np.maximum(v[:, 1], 0.0)
     s2 = v[:, 0] ** 2 + v[:, 2] ** 2
@@ -676,7 +681,7 @@ def square_to_ggx_pdf(v, alpha_x, alpha_y=None) -> np.ndarray:
 def ggx_to_square(v, alpha_x, alpha_y=None) -> np.ndarray:
     """Inverse of :func:`square_to_ggx`: ``u0 = a / (a + hy^2)`` with
     ``a = hx^2/ax^2 + hz^2/ay^2``, ``u1`` the azimuth of the scaled slope."""
-    v = as_array(v, "v", ndim=2, last=3)
+    v = _dirs(v, ndim=2)
     ax, ay = _alphas(alpha_x, alpha_y)
     sx, sz = v[:, 0] / ax, v[:, 2] / ay
     a = sx * sx + sz * sz
@@ -692,7 +697,7 @@ def _wo_upper(wo, n):
         wo = np.broadcast_to(wo, (n, 3))
     elif wo.ndim != 2 or wo.shape[0] != n:
         raise ValueError(f"wo must have shape (3,) or ({n}, 3); got shape {wo.shape}")
-    wo = normalize(wo)
+    wo = _dirs(wo, "wo")
     if wo.size and not np.all(wo[:, 1] >= 0.0):
         raise ValueError("wo must lie in the upper hemisphere (wo[..., 1] >= 0); "
                          f"got min y {wo[:, 1].min()}")
@@ -706,8 +711,8 @@ def square_to_ggx_visible(u, wo, alpha_x, alpha_y=None) -> np.ndarray:
     ----------
     u : array_like, shape (n, 2)
     wo : array_like, shape (3,) or (n, 3)
-        Outgoing (viewing) direction, local space, ``wo[..., 1] >= 0``
-        (the horizon included); normalised on entry.
+        Outgoing (viewing) unit direction, local space, ``wo[..., 1] >= 0``
+        (the horizon included).
     alpha_x, alpha_y : float
         As in :func:`square_to_ggx`.
 
@@ -773,7 +778,7 @@ def square_to_ggx_visible_pdf(h, wo, alpha_x, alpha_y=None) -> np.ndarray:
     h : array_like, shape (n, 3)
     wo : array_like, shape (3,) or (n, 3)
     """
-    h = as_array(h, "h", ndim=2, last=3)
+    h = _dirs(h, "h", ndim=2)
     ax, ay = _alphas(alpha_x, alpha_y)
     wo = _wo_upper(wo, h.shape[0])
     cos_o = wo[:, 1]
@@ -991,4 +996,8 @@ def area_to_solid_angle_pdf(pdf_area, ref_points, light_points, light_normals) -
     # dist^2 / |cos| = dist^3 |n| / |d . n|
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         val = pa * dist2 * np.sqrt(dist2) * nlen / np.where(ok, dn, 1.0)
+    if not np.all(np.isfinite(val[ok])):
+        raise ValueError("the solid-angle pdf pdf_area * dist^2 / |cos| overflows float64 (ref_points "
+                         f"and light_points up to {float(np.sqrt(np.max(dist2))):.3g} apart): "
+                         "check the units of ref_points and light_points")
     return np.where(ok, val, 0.0)

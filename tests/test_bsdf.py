@@ -117,19 +117,49 @@ def test_conductor_with_k_zero_is_the_dielectric():
         np.testing.assert_allclose(B.fresnel_conductor(c, eta, 0.0), B.fresnel_dielectric(c, 1.0, eta), atol=1e-12)
 
 
-def test_schlick_largest_error(record_property):
-    c = np.cos(np.linspace(0, np.pi / 2, 20001))
-    exact = B.fresnel_dielectric(c, 1.0, 1.5)
-    err = B.fresnel_schlick(c, 1.0, 1.5) - exact
-    i = np.argmax(np.abs(err))
-    record_property("schlick_max_abs_error", float(err[i]))
-    record_property("schlick_max_error_angle_deg", float(np.degrees(np.arccos(c[i]))))
-    # exact at both ends, so the largest error lies strictly inside
-    assert abs(err[0]) < 1e-15 and abs(err[-1]) < 1e-15
-    assert 0 < np.degrees(np.arccos(c[i])) < 90
-    # from inside glass Schlick with cos_t keeps the critical angle exactly
-    tc = B.critical_angle(1.5, 1.0)
-    assert B.fresnel_schlick(np.cos(tc + 1e-7), 1.5, 1.0) == 1.0
+def test_schlick_closed_form_at_mid_angles():
+    """Both ends agree for any exponent, so check the middle (issue 15: exponent 4
+    instead of 5 passed the suite). At 60 deg from air into glass cos = 1/2 and
+    R = R0 + (1 - R0) / 2^5 = 0.04 + 0.96 / 32 = 0.07 exactly (exponent 4: 0.10);
+    from inside glass Schlick uses the transmitted cosine, 1/2 where
+    sin(theta_i) = sin(60 deg) / 1.5."""
+    assert B.fresnel_schlick(0.5, 1.0, 1.5) == pytest.approx(0.07, abs=1e-15)
+    theta_i = np.arcsin(np.sin(np.pi / 3) / 1.5)
+    assert B.fresnel_schlick(np.cos(theta_i), 1.5, 1.0) == pytest.approx(0.07, abs=1e-14)
+    # and a general cosine against the formula written out: R0 = ((1 - 2.42) / 3.42)^2 (diamond)
+    r0 = ((1.0 - 2.42) / 3.42) ** 2
+    assert B.fresnel_schlick(0.3, 1.0, 2.42) == pytest.approx(r0 + (1 - r0) * 0.7 ** 5, rel=1e-14)
+
+
+@pytest.mark.parametrize("eta_i,eta_t,angle_deg", [(1.0, 1.5, 84.97), (1.5, 1.0, 41.61)])
+def test_schlick_largest_error(eta_i, eta_t, angle_deg, record_property):
+    """docs/optics.md: Schlick's largest error is +0.0357, at 84.97 deg air -> glass and
+    41.61 deg glass -> air (where the transmitted angle is 84.97 deg). Searched on a
+    1e-4 degree grid below the critical angle, refined by bounded minimisation."""
+    from scipy.optimize import minimize_scalar
+
+    top = np.pi / 2 if eta_i < eta_t else B.critical_angle(eta_i, eta_t) - 1e-9
+    th = np.linspace(0.0, top, 900_001)
+    err = B.fresnel_schlick(np.cos(th), eta_i, eta_t) - B.fresnel_dielectric(np.cos(th), eta_i, eta_t)
+    i = int(np.argmax(np.abs(err)))
+
+    def neg_err(t):
+        return -(B.fresnel_schlick(np.cos(t), eta_i, eta_t) - B.fresnel_dielectric(np.cos(t), eta_i, eta_t))
+
+    best = minimize_scalar(neg_err, bounds=(th[max(i - 1, 0)], th[min(i + 1, th.size - 1)]),
+                           method="bounded", options={"xatol": 1e-12})
+    record_property("schlick_max_error", float(-best.fun))
+    record_property("schlick_max_error_angle_deg", float(np.degrees(best.x)))
+    assert err[i] > 0.0                                  # Schlick over-estimates there
+    assert round(-best.fun, 4) == 0.0357                 # the documented value, to its 4 digits
+    assert round(float(np.degrees(best.x)), 2) == angle_deg
+    # exact at normal incidence, and from inside glass it keeps the critical angle exactly
+    assert abs(err[0]) < 1e-15
+    if eta_i > eta_t:
+        tc = B.critical_angle(eta_i, eta_t)
+        assert B.fresnel_schlick(np.cos(tc + 1e-7), eta_i, eta_t) == 1.0
+    else:
+        assert abs(err[-1]) < 1e-15                       # and at grazing incidence
 
 
 @pytest.mark.parametrize("name,expected", [

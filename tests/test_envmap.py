@@ -561,8 +561,10 @@ def test_bad_arguments():
         env.sample(np.array([[0.5, 1.5]]))
     with pytest.raises(ValueError, match="u must have shape"):
         env.sample(np.zeros((3, 3)))
-    with pytest.raises(ValueError, match="zero-length"):
+    with pytest.raises(ValueError, match="directions must hold unit vectors"):
         env.radiance(np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="directions must hold unit vectors"):
+        env.pdf(np.zeros((2, 3)))  # issue 15: named 'v' before
     with pytest.raises(ValueError, match="directions must be finite"):
         env.pdf(np.array([[np.nan, 1.0, 0.0]]))
     with pytest.raises(ValueError, match="pixel indices"):

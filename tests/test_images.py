@@ -309,6 +309,14 @@ def test_missing_file_is_file_not_found(tmp_path):
         read_image(tmp_path / "missing.exr")
 
 
+def test_a_directory_is_named_as_a_directory(tmp_path):
+    """Issue 15: a directory used to be reported as 'no such image file'."""
+    for d in (tmp_path, tmp_path / "renders.exr"):
+        d.mkdir(exist_ok=True)
+        with pytest.raises(IsADirectoryError, match="is a directory, not an image file"):
+            read_image(d)
+
+
 def test_npy_header_is_float32_hwc(tmp_path):
     path = write_image(tmp_path / "h.npy", np.ones((3, 4, 3)))
     arr = np.load(path)

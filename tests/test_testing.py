@@ -174,6 +174,39 @@ def test_chi2_rejects_pdf_off_by_two():
     assert "integrates to 2" in r.message
 
 
+def _z_up(v):
+    """A +z-normal library's view of mcvar directions (the swap docs/testing.md gives)."""
+    return np.asarray(v)[:, [0, 2, 1]]
+
+
+def test_third_party_style_pdfs_are_broadcast_and_axes_adapted():
+    """Issue 15: a pdf returning one constant (Mitsuba 3's uniform sphere returns a
+    size-1 array) is broadcast, in every check that calls a pdf; a +z-normal cosine
+    warp adapted by the documented one-line swap passes, and a mismatched pair fails."""
+    const = lambda v: np.array([1.0 / (4.0 * np.pi)])  # noqa: E731
+    r = chi2_test(w.square_to_uniform_sphere, const, "sphere", n=20_000, rng=SEED, test_count=N_FAMILY)
+    assert r.passed, r.message
+    assert check_pdf_normalized(lambda v: 1.0 / (4.0 * np.pi), "sphere").passed
+    assert check_extremes(w.square_to_uniform_sphere, const, "sphere").passed
+    wrong = chi2_test(w.square_to_uniform_sphere, lambda v: np.array([1.0 / (2.0 * np.pi)]), "sphere",
+                      n=2_000, rng=SEED)
+    assert not wrong.passed and "integrates to 2" in wrong.message
+
+    def lib_sample(u):  # a +z-normal cosine warp (normal = third coordinate)
+        return _z_up(w.square_to_cosine_hemisphere(u))
+
+    def lib_pdf(v):
+        return np.where(v[:, 2] >= 0.0, v[:, 2] / np.pi, 0.0)
+
+    ok = chi2_test(lambda u: _z_up(lib_sample(u)), lambda v: lib_pdf(_z_up(v)), "hemisphere",
+                   n=20_000, rng=SEED, test_count=N_FAMILY)
+    assert ok.passed, ok.message
+    unadapted = chi2_test(lib_sample, lib_pdf, "hemisphere", n=2_000, rng=SEED)
+    assert not unadapted.passed
+    with pytest.raises(ValueError, match=r"pdf\(x\) must return shape \(m,\).*got shape \(2,\)"):
+        chi2_test(w.square_to_uniform_sphere, lambda v: np.ones(2), "sphere", n=100, rng=SEED)
+
+
 def test_chi2_result_fields():
     r = chi2_test(w.square_to_uniform_sphere, w.square_to_uniform_sphere_pdf, "sphere",
                   n=50_000, rng=SEED, bins=(10, 20), significance=SIG)
@@ -488,7 +521,7 @@ def test_bsdf_chi2_bad_arguments():
         bsdf_chi2_test(Mirror(), WO, n=100)
     with pytest.raises(ValueError, match=r"wo must lie above the horizon \(wo\[1\] > 0\)"):
         bsdf_chi2_test(Diffuse(), np.array([1.0, 0.0, 0.0]), n=100)
-    with pytest.raises(ValueError, match="wo must be a unit vector"):
+    with pytest.raises(ValueError, match="wo must hold unit vectors"):
         bsdf_chi2_test(Diffuse(), np.array([0.0, 2.0, 0.0]), n=100)
     with pytest.raises(ValueError, match=r"wo must be one direction, shape \(3,\)"):
         bsdf_chi2_test(Diffuse(), np.tile(WO, (2, 1)), n=100)

@@ -43,7 +43,8 @@ WARPS = [
     ("triangle", w.square_to_uniform_triangle, w.square_to_uniform_triangle_pdf,
      w.uniform_triangle_to_square, "square", None, False),
 ]
-WO_LIST = [np.array([0.0, 1.0, 0.0]), np.array([0.6, 0.5, -0.3]), np.array([0.8, 0.0, 0.6])]
+WO_LIST = [np.array([0.0, 1.0, 0.0]), np.array([0.6, 0.5, -0.3]) / np.linalg.norm([0.6, 0.5, -0.3]),
+           np.array([0.8, 0.0, 0.6])]  # unit vectors: warps refuse other lengths
 VNDF = [(f"ggx_visible_{i}", (lambda u, wo=wo: w.square_to_ggx_visible(u, wo, AX, AY)),
          (lambda h, wo=wo: w.square_to_ggx_visible_pdf(h, wo, AX, AY)), "hemisphere")
         for i, wo in enumerate(WO_LIST)]
@@ -362,7 +363,7 @@ def test_bad_parameters():
     with pytest.raises(ValueError, match="exponent must be finite and >= 0"):
         w.square_to_phong_lobe(u, np.inf)
     with pytest.raises(ValueError, match="wo must lie in the upper hemisphere"):
-        w.square_to_ggx_visible(u, [0, -0.5, 0.5], 0.2)
+        w.square_to_ggx_visible(u, [0, -0.6, 0.8], 0.2)
     with pytest.raises(ValueError, match=r"wo must have shape \(3,\) or \(4, 3\)"):
         w.square_to_ggx_visible(u, np.ones((3, 3)), 0.2)
     with pytest.raises(ValueError, match="v must be finite"):

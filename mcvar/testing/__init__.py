@@ -35,7 +35,7 @@ from scipy import integrate, stats
 
 from .._validation import as_array, as_directions, as_rng, check_count, check_choice, check_positive
 from ._chi2 import Chi2Result, _sample_points, bsdf_chi2_test, chi2_test, sidak_significance
-from ._domains import _DOMAIN_INFO, DOMAINS, Domain, _bounds, _eval_pdf, _from_params, _to_params
+from ._domains import _DOMAIN_INFO, DOMAINS, Domain, _bounds, _eval_pdf, _from_params, _pdf_values, _to_params
 
 __all__ = [
     "DOMAINS",
@@ -120,7 +120,8 @@ def check_pdf_normalized(pdf: Callable, domain: Domain, *, bounds=None, atol: fl
     Parameters
     ----------
     pdf : callable
-        ``pdf(x)`` for ``(m, 2)`` points or ``(m, 3)`` directions, shape ``(m,)``.
+        ``pdf(x)`` for ``(m, 2)`` points or ``(m, 3)`` directions, shape ``(m,)``
+        (a scalar or size-1 result is broadcast to every point).
     domain : {'square', 'disk', 'hemisphere', 'sphere'}
     bounds : optional
         Integrate over a sub-rectangle of the parameter rectangle only (as in
@@ -291,7 +292,7 @@ def check_weight_consistency(bsdf: BSDFLike, wo, *, n: int = 10_000, rng=None,
                            "every sample failed (pdf 0): nothing to compare", n)
     wo_l, wi_l = wo[live], wi[live]
     f = np.asarray(bsdf.eval(wo_l, wi_l), dtype=np.float64).reshape(m, -1)
-    p = np.asarray(bsdf.pdf(wo_l, wi_l), dtype=np.float64).reshape(m)
+    p = _pdf_values(bsdf.pdf(wo_l, wi_l), m, "bsdf.pdf")
     ps = p_s[live]
     failed = ~np.any(weight2[live] > 0.0, axis=1)  # e.g. a lobe sample below the horizon
     rel_p = np.where(failed, 0.0, np.abs(ps - p) / ps)
@@ -431,7 +432,7 @@ def check_extremes(sample: Callable, pdf: Callable, domain: Domain, *, u=None) -
         return CheckResult("extremes", False, float((~ok).sum()), 0.0,
                            f"{int((~ok).sum())} boundary samples lie outside the {domain}", m)
     try:
-        p = np.asarray(pdf(x), dtype=np.float64)
+        p = _pdf_values(pdf(x), x.shape[0])
     except (IndexError, ValueError, FloatingPointError, ZeroDivisionError) as exc:
         return CheckResult("extremes", False, float("inf"), 0.0,
                            f"pdf raised {type(exc).__name__} on boundary samples: {exc}", m)

@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 from scipy import stats
 
-from .._validation import as_directions, as_rng, check_count, check_choice, check_positive
+from .._validation import as_directions, as_rng, as_unit_directions, check_count, check_choice, check_positive
 from ._domains import _DOMAIN_INFO, DOMAINS, Domain, _bounds, _expected_counts, _to_params
 
 __all__ = ["DOMAINS", "Chi2Result", "sidak_significance", "chi2_test", "bsdf_chi2_test"]
@@ -179,7 +179,8 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
         (so a BSDF's ``lambda u: bsdf.sample(wo, u)`` works; see
         :func:`bsdf_chi2_test` for BSDFs with failures or delta lobes).
     pdf : callable
-        ``pdf(x)`` gives the density of ``(m, d)`` points, shape ``(m,)``:
+        ``pdf(x)`` gives the density of ``(m, d)`` points, shape ``(m,)``
+        (a scalar or size-1 result, one constant for all, is broadcast):
         per unit area (square, disk) or per steradian (directions). For a
         sampler with failures it is the density of the *valid* samples, which
         integrates to the probability that a sample is valid (< 1).
@@ -488,8 +489,7 @@ def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
     wo = as_directions(wo, "wo")
     if wo.shape != (3,):
         raise ValueError(f"wo must be one direction, shape (3,); got shape {wo.shape}")
-    if not abs(float(np.dot(wo, wo)) - 1.0) <= 1e-9:
-        raise ValueError(f"wo must be a unit vector; got length {np.linalg.norm(wo):.6g}")
+    wo = as_unit_directions(wo, "wo")  # the one rule for directions (docs/conventions.md)
     transmissive = bool(getattr(bsdf, "transmissive", False))
     if not transmissive and not wo[1] > 0.0:
         raise ValueError(f"wo must lie above the horizon (wo[1] > 0) for a reflection BSDF, where "

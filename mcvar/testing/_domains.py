@@ -86,14 +86,25 @@ def _from_params(c0, c1, domain):
     return np.stack([s * np.cos(c1), c0, s * np.sin(c1)], axis=-1)
 
 
+def _pdf_values(val, m: int, name: str = "pdf") -> np.ndarray:
+    """A pdf's output as shape ``(m,)`` float64. A scalar or size-1 array (one
+    constant for every point, as Mitsuba 3's uniform-sphere pdf returns) is
+    broadcast; any other shape than ``(m,)`` is a ValueError naming ``name``."""
+    val = np.asarray(val, dtype=np.float64)
+    if val.size == 1 and val.ndim <= 1:
+        return np.full(m, float(val.reshape(())))
+    if val.shape != (m,):
+        raise ValueError(f"{name}(x) must return shape (m,) for m points (or one value for "
+                         f"all); got shape {val.shape} for m = {m}")
+    return val
+
+
 def _eval_pdf(pdf, pts, name="pdf"):
     out = np.empty(pts.shape[0])
     step = 1 << 20
     for i in range(0, pts.shape[0], step):
-        val = np.asarray(pdf(pts[i:i + step]), dtype=np.float64)
-        if val.shape != (min(step, pts.shape[0] - i),):
-            raise ValueError(f"{name}(x) must return shape (m,) for m points; got shape {val.shape}")
-        out[i:i + step] = val
+        m = min(step, pts.shape[0] - i)
+        out[i:i + step] = _pdf_values(pdf(pts[i:i + step]), m, name)
     return out
 
 
