@@ -2,7 +2,7 @@
 
 Every exercise's reference solution must PASS and its planted wrong solution
 must FAIL, so the graders themselves are tested; every notebook ends with two
-or three exercises, each graded by one ``grade.exercise(...)`` call.
+or three exercises, each graded by one ``exercise(...)`` call.
 """
 import json
 import math
@@ -14,7 +14,7 @@ import pytest
 
 from mcvar import warps
 from mcvar.bsdf import Lambertian
-from mcvar.testing import grade, mutants
+from mcvar.testing import exercise, grade, mutants
 from mcvar.testing.exercises import EXERCISES, LambertianSolution
 
 NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
@@ -23,14 +23,14 @@ NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 @pytest.mark.parametrize("name", list(EXERCISES))
 def test_reference_solution_passes(name):
     ex = EXERCISES[name]
-    r = grade.exercise(name, *ex.reference, verbose=False)
+    r = exercise(name, *ex.reference, verbose=False)
     assert r.passed and r.status == "PASS", r
 
 
 @pytest.mark.parametrize("name", list(EXERCISES))
 def test_planted_wrong_solution_fails(name):
     ex = EXERCISES[name]
-    r = grade.exercise(name, *ex.wrong, verbose=False)
+    r = exercise(name, *ex.wrong, verbose=False)
     assert not r.passed and r.status == "FAIL", (ex.mistake, r)
     assert r.reason and "NotImplementedError" not in r.reason
 
@@ -47,7 +47,7 @@ class _StubBSDF:
 def test_untouched_stub_is_not_attempted(name):
     ex = EXERCISES[name]
     stubs = [_StubBSDF() if part == "bsdf" else _stub for part in ex.parts]
-    r = grade.exercise(name, *stubs, verbose=False)
+    r = exercise(name, *stubs, verbose=False)
     assert r.status == grade.NOT_ATTEMPTED and not r.passed
 
 
@@ -59,7 +59,7 @@ def _notebook_sources(nb):
 def test_every_notebook_ends_with_two_or_three_graded_exercises():
     found = {}
     for nb in sorted(NOTEBOOKS.glob("0[1-6]_*.ipynb")):
-        names = re.findall(r'grade\.exercise\(\s*"([^"]+)"', _notebook_sources(nb))
+        names = re.findall(r'(?<![\w.])exercise\(\s*"([^"]+)"', _notebook_sources(nb))
         found[nb.name[:2]] = names
         assert 2 <= len(names) <= 3, f"{nb.name}: exercises {names}"
         for n in names:
@@ -154,8 +154,8 @@ def test_grade_pixel_sampler_rejects_index_past_end():
     (lambda: grade.grade_consistent(lambda n, rng: 0.0, 0.0, [16]), "ns"),
     (lambda: grade.grade_estimator(lambda n, rng: 0.0, 0.0, n=4, replicates=1), "replicates"),
     (lambda: grade.grade_sampler(lambda n, rng: None, 10, net=3), "net"),
-    (lambda: grade.exercise("99.nothing", None), "name"),
-    (lambda: grade.exercise("01.jittered"), "argument"),
+    (lambda: exercise("99.nothing", None), "name"),
+    (lambda: exercise("01.jittered"), "argument"),
 ])
 def test_bad_grader_arguments_raise(call, match):
     with pytest.raises((ValueError, TypeError), match=match):

@@ -29,7 +29,7 @@ LAYERS = {
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "runs", "reference", "analysis", "sweeps", "__init__"],
-    "testing": ["_domains", "_chi2", "mutants", "__init__"],
+    "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
     "integrators": None,  # filled when mcvar/integrators/ becomes a package (issue 10)
 }
 

@@ -27,11 +27,11 @@ from typing import Callable
 import numpy as np
 
 from .. import warps
-from .._validation import as_rng
+from .._validation import as_rng, check_choice
 from .grade import (GradeResult, grade_bsdf, grade_consistent, grade_estimator, grade_pixel_sampler,
                     grade_sampler, grade_values, grade_warp)
 
-__all__ = ["Exercise", "EXERCISES", "LambertianSolution"]
+__all__ = ["Exercise", "EXERCISES", "LambertianSolution", "exercise"]
 
 
 @dataclass(frozen=True)
@@ -483,3 +483,26 @@ _register(Exercise(
                                                     verbose=verbose),
     (_grid_estimate,), (_grid_estimate_wrong,),
     "a single random sample whatever n: unbiased, but its error never falls"))
+
+
+def exercise(name: str, *solution, verbose: bool = True) -> GradeResult:
+    """Grade the course notebooks' exercise ``name`` (see :mod:`mcvar.testing.exercises`).
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`EXERCISES`, e.g. ``'01.jittered'``.
+    *solution
+        The student's function(s) or object, in the order the exercise names them.
+    verbose : bool
+
+    Returns
+    -------
+    GradeResult
+    """
+    key = check_choice(name, "name", tuple(EXERCISES))
+    ex = EXERCISES[key]
+    if len(solution) != len(ex.parts):
+        raise TypeError(f"exercise {key!r} takes {len(ex.parts)} argument(s) ({', '.join(ex.parts)}); "
+                        f"got {len(solution)}")
+    return ex.grade(*solution, verbose=verbose)

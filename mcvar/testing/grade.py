@@ -51,7 +51,8 @@ from scipy import stats
 from .._validation import as_array, as_rng, check_choice, check_count, check_positive
 from ..discrepancy import is_net
 from ..geometry import spherical_to_direction
-from . import (CheckResult, DOMAINS, check_extremes, check_unbiased, check_weight_consistency)
+from ._domains import DOMAINS
+from .checks import CheckResult, check_extremes, check_unbiased, check_weight_consistency
 from ._chi2 import bsdf_chi2_test, chi2_test, sidak_significance
 
 __all__ = [
@@ -63,7 +64,6 @@ __all__ = [
     "grade_consistent",
     "grade_pixel_sampler",
     "grade_values",
-    "exercise",
     "NOT_ATTEMPTED",
 ]
 
@@ -665,28 +665,3 @@ def grade_values(function: Callable, inputs, expected, *, rtol: float = 1e-6, at
         return True, msg, (CheckResult("values", True, float(err.max()), rtol, msg, exp.size),)
 
     return _run(name, body, verbose)
-
-
-def exercise(name: str, *solution, verbose: bool = True) -> GradeResult:
-    """Grade the course notebooks' exercise ``name`` (see :mod:`mcvar.testing.exercises`).
-
-    Parameters
-    ----------
-    name : str
-        A key of :data:`mcvar.testing.exercises.EXERCISES`, e.g. ``'01.jittered'``.
-    *solution
-        The student's function(s) or object, in the order the exercise names them.
-    verbose : bool
-
-    Returns
-    -------
-    GradeResult
-    """
-    from .exercises import EXERCISES
-
-    key = check_choice(name, "name", tuple(EXERCISES))
-    ex = EXERCISES[key]
-    if len(solution) != len(ex.parts):
-        raise TypeError(f"exercise {key!r} takes {len(ex.parts)} argument(s) ({', '.join(ex.parts)}); "
-                        f"got {len(solution)}")
-    return ex.grade(*solution, verbose=verbose)
