@@ -36,10 +36,18 @@ def test_html_is_self_contained_and_states_results(fake_report):
     _, _, paths = fake_report
     page = paths["html"].read_text()
     sources = re.findall(r'src="([^"]*)"', page)
-    assert len(sources) == 5 and all(s.startswith("data:image/png;base64,") for s in sources)
+    # 5 figures + the reference + an estimate and an error map per method
+    assert len(sources) == 5 + 1 + 2 * 2 and all(s.startswith("data:image/png;base64,") for s in sources)
     assert "http" not in page.replace("http-equiv", "")  # nothing fetched from elsewhere
-    assert "<td>unbiased</td><td>both</td>" in page and "<td>biased</td><td>neither</td>" in page
+    verdicts = page.split('class="verdicts"')[1].split("</table>")[0]
+    assert "<td>unbiased</td><td>yes</td><td>yes</td><td>both</td>" in verdicts
+    assert "<td>biased</td><td>no</td><td>no</td><td>neither</td>" in verdicts
     assert "Sidak" in page and "± " in page
+    # the verdicts, the frontier and the images come before the first collapsed section
+    first_details = page.index("<details")
+    assert page.index('class="verdicts"') < page.index("Speed for accuracy") < page.index('class="tiles"') \
+        < first_details
+    assert page.count("<details") == 5 and "beforeprint" in page and "@media print" in page
 
 
 def test_csv_holds_the_sweeps_numbers_and_the_table_is_ranked(fake_report):
@@ -56,7 +64,7 @@ def test_csv_holds_the_sweeps_numbers_and_the_table_is_ranked(fake_report):
         assert float(row["mse"]) == m.mse and float(row["bias_pvalue"]) == m.bias_pvalue
     # figure-of-merit table: ranks 1..n with MSE x time ascending
     page = paths["html"].read_text()
-    table = page.split("Figure of merit")[1].split("</table>")[0]
+    table = page.split("figure of merit MSE x time")[1].split("</table>")[0]
     foms = [float(r[4]) for r in re.findall(r"<tr><td>(\d+)</td><td>(\w+)</td><td>(\w+)</td>"
                                             r"<td>(\d+)</td><td>([^<]+)</td>", table)]
     assert len(foms) == 16 and foms == sorted(foms)
