@@ -369,7 +369,7 @@ text-align:right}th{background:#f3f3f3}td:first-child,td:nth-child(2){text-align
 table.verdicts td{text-align:center}table.verdicts td:first-child{text-align:left;font-weight:600}
 img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}code{background:#f3f3f3}
 .tiles{display:flex;flex-wrap:wrap;gap:12px}.col{display:flex;flex-direction:column}
-.tile img{width:256px;height:auto;image-rendering:pixelated;image-rendering:crisp-edges}
+.tile img{width:256px;height:auto;image-rendering:pixelated}
 .note{font-size:12px;color:#555}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
 margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
 @media print{body{max-width:none;margin:0}details{border:none;padding:0}
