@@ -24,7 +24,7 @@ consistent method), :mod:`~mcvar.experiments.runs` (streams, executors, caches),
 (metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`. Every public
 name is importable from ``mcvar.experiments`` itself.
 """
-from .targets import Target, integrand_target, lecture_target, make_target, parse_method, scene_target
+from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
 from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target
 from .runs import CACHE_VERSION, SerialExecutor, run_seed
 from .reference import Reference, compute_reference
@@ -43,6 +43,7 @@ __all__ = [
     "lecture_target",
     "scene_target",
     "make_target",
+    "load_target",
     "parse_method",
     "run_seed",
     "compute_reference",
