@@ -25,7 +25,7 @@ consistent method), :mod:`~mcvar.experiments.runs` (streams, executors, caches),
 name is importable from ``mcvar.experiments`` itself.
 """
 from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
-from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target
+from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target, photo_target
 from .runs import CACHE_VERSION, SerialExecutor, run_seed
 from .reference import Reference, compute_reference
 from .analysis import ConfigMetrics, MethodFits, Verdict
@@ -51,5 +51,6 @@ __all__ = [
     "denoise_tv",
     "denoise_weight",
     "denoised_target",
+    "photo_target",
     "DENOISE_SUFFIX",
 ]
