@@ -579,6 +579,7 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
     1, 4, 16 and 64 spp, 8 replicates, 32 x 32 pixels.
     """
     s = DEMO_SETTINGS
-    return convergence_report(scene_target("cornell", res=s["res"]), out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
+    target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
+    return convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
                               workers=workers, progress=progress)
