@@ -484,8 +484,8 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
         "<h2>Speed for accuracy</h2>",
         "<p>MSE against wall time per estimate, one curve per method and sampler (points: the "
         f"{xlabel} levels). Starred: the efficient configurations, those no other configuration beats "
-        "in both time and MSE" + (f": {html.escape(front_text)}" + (", ..." if len(front) > 8 else "")
-                                  if front else "") + ".</p>",
+        "in both time and MSE" + (f": {html.escape(front_text)}" + (f" and {len(front) - 8} more" if len(front) > 8
+                                                                   else "") if front else "") + ".</p>",
         _img(paths["mse_time"], "MSE against wall time per estimate; stars mark the efficient (Pareto) "
                                 "configurations."),
     ]

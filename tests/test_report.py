@@ -133,3 +133,18 @@ def test_cli_converge_uses_a_user_supplied_reference(tmp_path, capsys):
     with open(out / "results.csv") as fh:
         rows = [r for r in csv.DictReader(fh) if r["method"] == "importance"]
     assert rows and all(float(r["bias"]) == -0.5 for r in rows)
+
+
+def test_pareto_front_keeps_exactly_the_undominated_points():
+    pts = [(1.0, 5.0), (2.0, 3.0), (2.0, 4.0), (3.0, 3.0), (4.0, 1.0), (5.0, 2.0), (1.0, 5.0)]
+    # (2,4) is beaten by (2,3); (3,3) by (2,3); (5,2) by (4,1); the duplicate (1,5) ties, so both stay
+    assert report.pareto_front(pts).tolist() == [True, True, False, False, True, False, True]
+
+
+def test_lecture_claims_come_from_the_chart_and_the_bias_slides():
+    assert report.lecture_claim("cornell", "path") == ("almost", "almost")
+    assert report.lecture_claim("cornell", "photon") == ("yes", "no")
+    assert report.lecture_claim("cornell", "path:3") is None  # the chart says nothing of a depth limit
+    assert report.lecture_claim("cornell", "direct") is None
+    assert report.lecture_claim("lecture", "grid") == ("yes", "no")
+    assert report.lecture_claim("lecture", "single") == ("no", "yes")
