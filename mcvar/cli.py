@@ -166,10 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_converge)
 
     p = sub.add_parser("demo", parents=[quiet], help="the default Cornell-box convergence report",
-                       description="Render the Cornell box (32 x 32) with path tracing (Russian "
-                                   "roulette), path tracing stopped at depth 2 and direct lighting, "
+                       description="Render the Cornell box (64 x 64) with path tracing (Russian "
+                                   "roulette), path tracing stopped at depth 3 and direct lighting, "
                                    "each with the random, jittered and Sobol samplers at 1, 4, 16 "
-                                   "and 64 spp, 8 replicates, and write the convergence report "
+                                   "and 64 spp, 6 replicates, and write the convergence report "
                                    "(report.html, CSVs, PNGs). Re-running reuses finished runs.")
     p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
     p.set_defaults(func=_cmd_demo)
