@@ -65,7 +65,11 @@ def _title(path: Path) -> str:
             text = "".join(cell.get("source", []))
             m = re.search(r"^#\s+(.+)$", text, flags=re.M)
             if m:
-                return m.group(1).strip()
+                title = m.group(1).strip()
+                number = re.match(r"^(\d+)_", path.stem)
+                if number and not title.startswith(number.group(1)):
+                    title = f"{number.group(1)} · {title}"  # the course order, as the other titles show it
+                return title
     return path.stem.replace("_", " ")
 
 
