@@ -50,6 +50,10 @@ def test_converge_measures_a_user_renderer_by_module_function(tmp_path, monkeypa
     # a missing function, a bad spec and two targets at once are clear errors
     assert main(["converge", "--target", "my_toy_renderer:nope", "--quiet", "--out", str(out)]) == 2
     assert "no function or Target named 'nope'" in capsys.readouterr().err
+    assert main(["converge", "--target", "my_toy_renderer:NOT_CALLABLE", "--quiet", "--out", str(out)]) == 2
+    assert "no function or Target named 'NOT_CALLABLE'" in capsys.readouterr().err
+    assert main(["converge", "--target", "no_such_module:evaluate", "--quiet", "--out", str(out)]) == 2
+    assert "cannot import module 'no_such_module'" in capsys.readouterr().err
     assert main(["converge", "--target", "my_toy_renderer", "--quiet", "--out", str(out)]) == 2
     assert "module:function" in capsys.readouterr().err
     assert main(["converge", "cornell", "--target", "my_toy_renderer:evaluate", "--out", str(out)]) == 2
