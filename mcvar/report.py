@@ -39,9 +39,10 @@ from .plotting import plot_loglog, plt, save_figure
 __all__ = ["convergence_report", "demo", "write_report", "pareto_front", "lecture_claim", "DEMO_SETTINGS",
            "LECTURE_CLAIMS"]
 
-#: What ``mcvar demo`` runs: 64 x 64 pixels in 44-56 s on a shared, loaded 2-core
-#: machine (the former 32 x 32 up to 256 spp with 8 replicates took 50-76 s there;
-#: 64 x 64 with those levels took 9 minutes). The reference is 8 chunks of 256 spp.
+#: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
+#: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
+#: took 50-76 s there; 64 x 64 with those levels took 9 minutes). The reference is
+#: 8 chunks of 256 spp.
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
                      spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256)
 
