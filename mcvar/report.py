@@ -373,11 +373,12 @@ table.verdicts td{text-align:center}table.verdicts td:first-child{text-align:lef
 img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}code{background:#f3f3f3}
 .tiles{display:flex;flex-wrap:wrap;gap:12px}.col{display:flex;flex-direction:column}
 .tile img{width:256px;height:auto;image-rendering:pixelated}
-.note{font-size:12px;color:#555}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
+.note{font-size:12px;color:#555}.scroll{overflow-x:auto}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
 margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
 @media print{body{max-width:none;margin:0}details{border:none;padding:0}
 details::details-content{content-visibility:visible;display:contents}
-summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}}"""
+summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}
+.scroll{overflow:visible}table.configs{font-size:9px}}"""
 
 # Opens every collapsed section before printing (print CSS covers browsers with ::details-content).
 _PRINT_JS = ("<script>addEventListener('beforeprint',function(){document.querySelectorAll('details')"
@@ -511,7 +512,7 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
                  "box at 64 x 64 and 256 spp with a multi-jittered sampler (about 1.4e-4 with independent "
                  "sampling)." + (" PSNR and SSIM: of the displayed (sRGB) image against the reference, "
                                  "mean over replicates." if quality else "") + "</p>",
-                 _table(fom_header, fom_rows, cls="configs")),
+                 f'<div class="scroll">{_table(fom_header, fom_rows, cls="configs")}</div>'),
         _details("More figures",
                  _img(paths["variance"], f"Variance against {xlabel}, log-log, fitted slopes in the "
                                          "legends (dotted: slope -1)."),
