@@ -5,6 +5,7 @@ Subcommands::
     mcvar samplers  --n 256 --out DIR        every sampler's points, spectra, discrepancy vs n
     mcvar render    cornell --spp 64 ...     one image, .npy (linear), .png (sRGB) or .exr
     mcvar converge  TARGET --out DIR         variance / bias / MSE / efficiency vs spp report
+    mcvar converge  --target MOD:FUNC ...    the same for your own renderer's evaluate function
     mcvar demo      [--out DIR]              the default Cornell-box convergence report
 
 Each subcommand parses its options and calls one library function; all the
@@ -67,7 +68,16 @@ def _cmd_render(args) -> int:
 def _cmd_converge(args) -> int:
     from .report import convergence_report
 
-    paths = convergence_report(args.target, args.out, methods=args.methods, samplers=args.samplers,
+    if (args.target is None) == (args.target_spec is None):
+        raise ValueError("give a target: a name (cornell, checkerboard, ...) or --target module:function, "
+                         "not both")
+    if args.target_spec is not None:
+        from .experiments import load_target
+
+        target = load_target(args.target_spec)
+    else:
+        target = args.target
+    paths = convergence_report(target, args.out, methods=args.methods, samplers=args.samplers,
                                spp=args.spp, replicates=args.replicates, res=args.res,
                                seed=args.seed, workers=args.workers, progress=not args.quiet,
                                reference=args.reference)
@@ -129,7 +139,12 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Sweep methods x samplers x spp levels x replicates on a scene "
                                    "(cornell, ...) or an integrand (checkerboard, hemisphere, ...) "
                                    "and write plots, a CSV of every number and a summary page.")
-    p.add_argument("target", help="scene (cornell, cornell-spheres) or integrand (checkerboard, hemisphere, ...)")
+    p.add_argument("target", nargs="?", default=None,
+                   help="scene (cornell, cornell-spheres) or integrand (checkerboard, hemisphere, ...)")
+    p.add_argument("--target", dest="target_spec", metavar="MODULE:FUNCTION", default=None,
+                   help="your own renderer instead: FUNCTION(method, sampler, spp, rng) -> image in "
+                        "MODULE (importable from the current folder); methods from --methods or the "
+                        "module's METHODS; reference from --reference, EXACT or reference(rng)")
     p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
                    default=None, help="comma-separated integrators (scenes; 'path:3' stops paths at "
                                       "depth 3, 'path' uses Russian roulette) or the problem's "
@@ -151,10 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_converge)
 
     p = sub.add_parser("demo", parents=[quiet], help="the default Cornell-box convergence report",
-                       description="Render the Cornell box (32 x 32) with path tracing (Russian "
-                                   "roulette), path tracing stopped at depth 2 and direct lighting, "
+                       description="Render the Cornell box (64 x 64) with path tracing (Russian "
+                                   "roulette), path tracing stopped at depth 3 and direct lighting, "
                                    "each with the random, jittered and Sobol samplers at 1, 4, 16 "
-                                   "and 64 spp, 8 replicates, and write the convergence report "
+                                   "and 64 spp, 6 replicates, and write the convergence report "
                                    "(report.html, CSVs, PNGs). Re-running reuses finished runs.")
     p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
     p.set_defaults(func=_cmd_demo)

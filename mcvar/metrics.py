@@ -1,7 +1,11 @@
 """Error metrics and convergence-rate fits (layer 1).
 
 ``mse`` and ``relative_mse`` compare an image or estimate with a reference
-(reference first, as in ``skimage.metrics``); :func:`loglog_fit` fits
+(reference first, as in ``skimage.metrics``). Beside them, the image-quality
+measures of scikit-image: :func:`peak_signal_noise_ratio` and
+:func:`structural_similarity` (MSE stays the estimator-theoretic measure:
+variance plus squared bias; SSIM answers 'does it look converged').
+:func:`loglog_fit` fits
 ``log y = intercept + slope * log x`` and reports the slope's standard error,
 which every rate claim in mcvar (discrepancy ~ n^-1, variance ~ N^-1, ...) is
 tested against.
@@ -15,7 +19,8 @@ from scipy import stats
 
 from ._validation import as_array
 
-__all__ = ["mse", "relative_mse", "LogLogFit", "loglog_fit"]
+__all__ = ["mse", "relative_mse", "peak_signal_noise_ratio", "structural_similarity", "LogLogFit",
+           "loglog_fit"]
 
 
 def _pair(reference, estimate):
@@ -44,6 +49,62 @@ def relative_mse(reference, estimate, *, eps: float = 1e-2) -> float:
     if not eps > 0:
         raise ValueError(f"eps must be > 0; got {eps}")
     return float(np.mean((est - ref) ** 2 / (ref ** 2 + eps)))
+
+
+def _data_range(ref: np.ndarray, data_range) -> float:
+    if data_range is None:
+        data_range = float(ref.max() - ref.min())
+        if not data_range > 0:
+            raise ValueError("reference is constant: pass data_range (e.g. 1.0 for images in [0, 1])")
+        return data_range
+    data_range = float(data_range)
+    if not (np.isfinite(data_range) and data_range > 0):
+        raise ValueError(f"data_range must be a positive finite number; got {data_range}")
+    return data_range
+
+
+def peak_signal_noise_ratio(reference, estimate, *, data_range=None) -> float:
+    """Peak signal-to-noise ratio ``10 log10(data_range^2 / MSE)`` in dB.
+
+    :func:`skimage.metrics.peak_signal_noise_ratio` with the reference first.
+    ``data_range`` defaults to ``reference.max() - reference.min()`` (a
+    linear-radiance render has no fixed white; pass 1.0 for sRGB images in
+    [0, 1]). ``inf`` when the estimate equals the reference.
+    """
+    from skimage.metrics import peak_signal_noise_ratio as psnr
+
+    ref, est = _pair(reference, estimate)
+    rng = _data_range(ref, data_range)
+    if np.array_equal(ref, est):
+        return float("inf")
+    return float(psnr(ref, est, data_range=rng))
+
+
+def structural_similarity(reference, estimate, *, data_range=None, channel_axis=None,
+                          win_size=None, gaussian_weights: bool = False) -> float:
+    """Mean structural similarity (SSIM) of an image and its reference, in [-1, 1].
+
+    :func:`skimage.metrics.structural_similarity` (Wang et al., "Image
+    quality assessment: from error visibility to structural similarity",
+    IEEE TIP 13(4), 2004) with the reference first. An ``(H, W, 3)`` or
+    ``(H, W, 4)`` image is compared per channel (``channel_axis=-1`` by
+    default); ``data_range`` as in :func:`peak_signal_noise_ratio`.
+    ``win_size`` (odd, default 7) must not exceed the image's smaller side.
+    """
+    from skimage.metrics import structural_similarity as ssim
+
+    ref, est = _pair(reference, estimate)
+    if ref.ndim not in (2, 3):
+        raise ValueError(f"reference must be an image (H, W) or (H, W, C); got shape {ref.shape}")
+    if channel_axis is None and ref.ndim == 3:
+        channel_axis = -1
+    spatial = ref.shape[:2] if channel_axis in (-1, 2) or ref.ndim == 2 else ref.shape[1:]
+    win = 7 if win_size is None else int(win_size)
+    if win < 3 or win % 2 == 0 or win > min(spatial):
+        raise ValueError(f"win_size must be odd, >= 3 and <= the image's smaller side {min(spatial)}; "
+                         f"got {win}")
+    return float(ssim(ref, est, data_range=_data_range(ref, data_range), channel_axis=channel_axis,
+                      win_size=win, gaussian_weights=gaussian_weights))
 
 
 @dataclass(frozen=True)

@@ -33,13 +33,18 @@ import numpy as np
 from scipy import stats
 
 from .experiments import SweepResult, make_target, scene_target, sweep
+from .images import linear_to_srgb
 from .plotting import plot_loglog, plt, save_figure
 
-__all__ = ["convergence_report", "demo", "write_report", "DEMO_SETTINGS"]
+__all__ = ["convergence_report", "demo", "write_report", "pareto_front", "lecture_claim", "DEMO_SETTINGS",
+           "LECTURE_CLAIMS"]
 
-#: What ``mcvar demo`` runs (chosen to take about two minutes on 2 cores).
+#: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
+#: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
+#: took 50-76 s there; 64 x 64 with those levels took 9 minutes). The reference is
+#: 8 chunks of 256 spp.
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64, 256), replicates=8, res=32, seed=0)
+                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256)
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
 
@@ -105,20 +110,48 @@ def _plot_variance(result: SweepResult, path: Path, xlabel: str) -> Path:
     return save_figure(fig, path)
 
 
+def pareto_front(points) -> np.ndarray:
+    """Mask of the efficient (Pareto-optimal) points of ``(seconds, mse)`` pairs.
+
+    A point is efficient when no other point is at least as fast and at
+    least as accurate and strictly better in one: the configurations worth
+    choosing for some time budget (the lower-left staircase of the MSE
+    against time plot).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    better_eq = np.all(pts[None, :, :] <= pts[:, None, :], axis=-1)
+    strictly = np.any(pts[None, :, :] < pts[:, None, :], axis=-1)
+    return ~np.any(better_eq & strictly, axis=1)
+
+
+def _frontier(result: SweepResult) -> list:
+    """Every configuration with a positive MSE and time, and whether it is efficient."""
+    rows = [m for m in result.metrics if m.mse > 0 and m.seconds > 0]
+    if not rows:
+        return []
+    mask = pareto_front([(m.seconds, m.mse) for m in rows])
+    return [(m, bool(e)) for m, e in zip(rows, mask)]
+
+
 def _plot_mse_time(result: SweepResult, path: Path) -> Path:
-    fig, ax = plt.subplots(figsize=(6, 4.2))
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
     styles = ("-", "-.", ":", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)))
     for i, method in enumerate(result.methods):
         for sampler in result.samplers:
             rows = [m for m in _series(result, method, sampler) if m.mse > 0 and m.seconds > 0]
             if rows:
-                plot_loglog(ax, [m.seconds for m in rows], [m.mse for m in rows],
-                            label=f"{method} / {sampler}", ls=styles[i % len(styles)])
+                ax.plot([m.seconds for m in rows], [m.mse for m in rows], marker="o", ms=3,
+                        ls=styles[i % len(styles)], label=f"{method} / {sampler}")
+    front = [m for m, efficient in _frontier(result) if efficient]
+    if front:
+        front.sort(key=lambda m: m.seconds)
+        ax.plot([m.seconds for m in front], [m.mse for m in front], ls="none", marker="*", ms=11,
+                mfc="none", mec="k", mew=1.0, label="efficient (Pareto)")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("wall time per estimate (s)")
     ax.set_ylabel("MSE")
-    ax.set_title("MSE against time: lower-left is better")
+    ax.set_title("Speed for accuracy: lower-left is better")
     _legend(ax, "MSE 0 everywhere", fontsize=6)
     return save_figure(fig, path)
 
@@ -161,9 +194,7 @@ def _plot_efficiency(result: SweepResult, path: Path, xlabel: str) -> Path:
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:
-    x = np.clip(img, 0.0, None)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.minimum(x, 1.0), 1 / 2.4) - 0.055)
-    return np.clip(srgb, 0.0, 1.0)
+    return linear_to_srgb(np.clip(img, 0.0, None))
 
 
 def _plot_images(result: SweepResult, path: Path) -> Path:
@@ -206,32 +237,167 @@ def _fmt(x, digits=3) -> str:
     return f"{x:.{digits}g}"
 
 
-def _table(header, rows) -> str:
+def _table(header, rows, *, cls: str = "") -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>"
                    for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    attr = f' class="{cls}"' if cls else ""
+    return f"<table{attr}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
 def _slope(fit) -> str:
     return f"{fit.slope:.2f} ± {fit.slope_stderr:.2f}" if fit is not None else "n/a"
 
 
+def _data_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
 def _img(path: Path, alt: str) -> str:
-    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return f'<figure><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}"/>' \
+    return f'<figure><img alt="{html.escape(alt)}" src="{_data_uri(Path(path).read_bytes())}"/>' \
            f"<figcaption>{html.escape(alt)}</figcaption></figure>"
 
 
-_CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
-table{border-collapse:collapse;font-size:13px;margin:.5em 0 1.5em}td,th{border:1px solid #ccc;
-padding:3px 7px;text-align:right}th{background:#f3f3f3}td:first-child,td:nth-child(2){text-align:left}
-img{max-width:100%}figure{margin:1em 0}figcaption{font-size:12px;color:#555}code{background:#f3f3f3}"""
+def _png(rgb8: np.ndarray) -> bytes:
+    import imageio.v3 as iio
+
+    return iio.imwrite("<bytes>", rgb8, extension=".png")
+
+
+#: Images in the report are upscaled (nearest neighbour) to at least this many pixels wide.
+IMAGE_WIDTH = 256
+
+
+def _upscale(rgb8: np.ndarray, width: int = IMAGE_WIDTH) -> np.ndarray:
+    k = max(1, -(-width // rgb8.shape[1]))
+    return np.repeat(np.repeat(rgb8, k, axis=0), k, axis=1)
+
+
+def _error_colors(err: np.ndarray, vmax: float) -> np.ndarray:
+    from matplotlib import colormaps
+
+    rgba = colormaps["magma"](np.clip(err / vmax, 0.0, 1.0) if vmax > 0 else np.zeros_like(err))
+    return np.rint(255 * rgba[..., :3]).astype(np.uint8)
+
+
+def _tile(rgb8: np.ndarray, caption: str) -> str:
+    alt = html.escape(caption)
+    return (f'<figure class="tile"><img class="pixelated" alt="{alt}" '
+            f'src="{_data_uri(_png(_upscale(rgb8)))}"/><figcaption>{alt}</figcaption></figure>')
+
+
+def _image_tiles(result: SweepResult) -> str:
+    """Reference, one estimate per method (first sampler, largest spp) and its
+    per-pixel absolute error (mean over RGB) on one shared colour scale."""
+    n, sampler = result.spp[-1], result.samplers[0]
+    ref = result.reference.value
+    show = lambda img: np.rint(255 * _tonemap(img)).astype(np.uint8)  # noqa: E731
+    estimates = {m: result.values[(m, sampler, n)][0] for m in result.methods}
+    errors = {m: np.abs(v - ref).mean(axis=-1) for m, v in estimates.items()}
+    vmax = float(np.quantile(np.concatenate([e.ravel() for e in errors.values()]), 0.99))
+    cols = [f'<div class="col">{_tile(show(ref), "reference")}</div>']
+    for m in result.methods:
+        cols.append(f'<div class="col">{_tile(show(estimates[m]), f"{m} ({sampler}, {n} spp)")}'
+                    f'{_tile(_error_colors(errors[m], vmax), f"{m}: |error|")}</div>')
+    return (f'<div class="tiles">{"".join(cols)}</div><p class="note">Upscaled without smoothing. '
+            f"Error maps: per-pixel |estimate − reference| (mean over RGB) of that one estimate, "
+            f"black 0 to yellow {vmax:.3g} (99th percentile; brighter pixels clipped).</p>")
+
+
+#: The lecture's claims: 'Rendering Algorithm Chart' (consistent?, unbiased?)
+#: per integrator, and the 'Bias & Consistency' / 'Consistent Or Unbiased?'
+#: slides for the estimators of the lecture target.
+LECTURE_CLAIMS = {
+    "raster": ("no", "no"), "path": ("almost", "almost"), "bdpt": ("yes", "yes"),
+    "mlt": ("yes", "yes"), "pssmlt": ("yes", "yes"), "photon": ("yes", "no"),
+    "radiosity": ("no", "no"),
+}
+LECTURE_ESTIMATOR_CLAIMS = {
+    "uniform": ("yes", "yes"), "grid": ("yes", "no"), "single": ("no", "yes"), "undivided": ("no", "no"),
+}
+
+
+def lecture_claim(target: str, method: str):
+    """The lecture's ``(consistent, unbiased)`` claim for ``method``, or None.
+
+    Integrators take the chart's row of their base name (``'path:3'`` and
+    ``'path+tv'`` have none: the chart speaks of path tracing as such); a
+    method registered with a ``lecture`` claim (:mod:`mcvar.integrators`)
+    overrides the table.
+    """
+    if target == "lecture":
+        return LECTURE_ESTIMATOR_CLAIMS.get(method)
+    if ":" in method or "+" in method:
+        return None
+    try:
+        from .integrators import METHODS  # the registry, where present
+        claim = getattr(METHODS.get(method), "lecture", None)
+        if claim is not None:
+            return tuple(claim)
+    except ImportError:
+        pass
+    return LECTURE_CLAIMS.get(method)
+
+
+def _verdict_table(result: SweepResult) -> str:
+    rows = []
+    for v in result.verdicts.values():
+        claim = lecture_claim(result.target, v.method)
+        rows.append((v.method, _fmt(v.unbiased), _fmt(v.consistent), v.label,
+                     claim[1] if claim else "—", claim[0] if claim else "—"))
+    return _table(("method", "unbiased (measured)", "consistent (measured)", "verdict",
+                   "lecture: unbiased?", "lecture: consistent?"), rows, cls="verdicts")
+
+
+def _clauses(text: str) -> list[str]:
+    """Split evidence at the '; ' that are outside parentheses."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if depth == 0 and text.startswith("; ", i):
+            parts.append(text[start:i])
+            start = i + 2
+    return [p for p in parts + [text[start:]] if p]
+
+
+def _details(summary: str, *content: str, open_: bool = False) -> str:
+    attr = " open" if open_ else ""
+    return f"<details{attr}><summary>{html.escape(summary)}</summary>{''.join(content)}</details>"
+
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:1.5em auto;padding:0 1em;color:#222;
+line-height:1.45}h1{font-size:1.6em;margin-bottom:.2em}h2{margin-top:1.4em}.lead{color:#555;margin-top:0}
+table{border-collapse:collapse;font-size:13px;margin:.5em 0 1em}td,th{border:1px solid #ccc;padding:3px 7px;
+text-align:right}th{background:#f3f3f3}td:first-child,td:nth-child(2){text-align:left}
+table.verdicts td{text-align:center}table.verdicts td:first-child{text-align:left;font-weight:600}
+img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}code{background:#f3f3f3}
+.tiles{display:flex;flex-wrap:wrap;gap:12px}.col{display:flex;flex-direction:column}
+.tile img{width:256px;height:auto;image-rendering:pixelated}
+.note{font-size:12px;color:#555}.scroll{overflow-x:auto}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
+margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
+@media print{body{max-width:none;margin:0}details{border:none;padding:0}
+details::details-content{content-visibility:visible;display:contents}
+summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}
+.scroll{overflow:visible}table.configs{font-size:9px}}"""
+
+# Opens every collapsed section before printing (print CSS covers browsers with ::details-content).
+_PRINT_JS = ("<script>addEventListener('beforeprint',function(){document.querySelectorAll('details')"
+             ".forEach(function(d){d.open=true})})</script>")
 
 
 def write_report(result: SweepResult, out, *, elapsed: float | None = None,
                  command: str | None = None, progress_note: str = "") -> dict[str, Path]:
     """Write the figures, CSVs and ``report.html`` of a finished sweep.
+
+    The page opens with what a reader wants first: the verdict per method
+    (measured unbiased / consistent, beside the lecture's claim), the
+    speed-for-accuracy frontier (MSE against seconds, one curve per method
+    and sampler, the efficient configurations starred) and, for scenes, the
+    images upscaled without smoothing beside the reference and a per-pixel
+    error map. The evidence behind each verdict, the fitted rates, the full
+    table of configurations, the other figures and the settings follow in
+    collapsible sections (opened for printing). One self-contained file:
+    images are embedded as data URIs, nothing is fetched.
 
     Parameters
     ----------
@@ -265,16 +431,24 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     if is_image:
         paths["images"] = _plot_images(result, out / "images.png")
 
-    verdict_rows = [(v.method, v.label, _fmt(v.unbiased), _fmt(v.consistent), v.evidence)
-                    for v in result.verdicts.values()]
+    quality = any(np.isfinite(m.ssim) for m in result.metrics)
     fit_rows = [(f.method, f.sampler, _slope(f.variance), _slope(f.mse), _slope(f.mse_time),
                  _slope(f.bias2), _fmt(f.consistent)) for f in result.fits.values()]
     ranked = sorted(result.metrics, key=lambda m: (m.figure_of_merit, m.method, m.sampler, m.spp))
-    fom_rows = [(i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
-                 _fmt(m.mse),
-                 _fmt(m.seconds), _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
-                 f"{m.bias_z:.2f}", _fmt(m.bias_pvalue), _fmt(m.bias_detected))
-                for i, m in enumerate(ranked)]
+    efficient = {(m.method, m.sampler, m.spp) for m, e in _frontier(result) if e}
+    fom_rows = []
+    for i, m in enumerate(ranked):
+        row = [i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
+               _fmt((m.method, m.sampler, m.spp) in efficient), _fmt(m.mse), _fmt(m.seconds),
+               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2), f"{m.bias_z:.2f}",
+               _fmt(m.bias_pvalue), _fmt(m.bias_detected)]
+        if quality:
+            row += [_fmt(m.psnr, 4), _fmt(m.ssim, 3)]
+        fom_rows.append(row)
+    fom_header = ["rank", "method", "sampler", xlabel, "MSE x time", "verdict", "efficient", "MSE", "seconds",
+                  "efficiency", "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"]
+    if quality:
+        fom_header += ["PSNR (dB)", "SSIM"]
     ref = result.reference
     facts = [
         ("target", result.target),
@@ -291,50 +465,72 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
         facts.append(("wall time of the sweep", f"{elapsed:.1f} s"))
     if command:
         facts.append(("command", command))
+
+    front = sorted((m for m, e in _frontier(result) if e), key=lambda m: m.seconds)
+    front_text = ", ".join(f"{m.method} / {m.sampler} at {m.spp} {xlabel}" for m in front[:8])
+    evidence = []
+    for v in result.verdicts.values():
+        items = "".join(f"<li>{html.escape(part)}</li>" for part in _clauses(v.evidence))
+        evidence.append(f"<h3>{html.escape(v.method)}: {html.escape(v.label)}</h3><ul class='evidence'>"
+                        f"{items}</ul>")
+    shape = (f"{ref.value.shape[1]} x {ref.value.shape[0]} pixels, " if is_image else "")
     body = [
         f"<h1>Convergence report: {html.escape(result.target)}</h1>",
-        _table(("setting", "value"), [(k, v) for k, v in facts]),
+        f"<p class='lead'>{shape}{len(result.methods)} methods x {len(result.samplers)} samplers x "
+        f"{len(result.spp)} {xlabel} levels x {result.replicates} replicates"
+        + (f", {elapsed:.0f} s" if elapsed is not None else "") + ".</p>",
         "<h2>Verdicts</h2>",
-        "<p>The lecture's <em>Rendering Algorithm Chart</em> asks of each method: is it consistent, "
-        "is it unbiased? Measured here. <b>Unbiased</b>: no configuration's bias is distinguishable "
-        f"from zero (Welch t test of the mean value against the reference, two-sided, Sidak-corrected "
-        f"to family-wise alpha = {result.alpha:g}, i.e. p &lt; {result.alpha_family:.3g} per test). "
-        "<b>Consistent</b>: for every sampler the MSE falls with spp (one-sided t test on the log-log "
-        "slope) and the bias vanishes (not detected at the largest spp, or its square falls "
-        "significantly).</p>",
-        _table(("method", "verdict", "unbiased", "consistent", "evidence"), verdict_rows),
-        "<h2>Fitted rates</h2>",
-        "<p>Least-squares slopes of log(quantity) against log(spp) (MSE also against log(time)), "
-        "± their standard errors. Plain Monte Carlo variance falls as 1/N (slope -1); stratified "
-        "and QMC samplers can do better on smooth integrands.</p>",
-        _table(("method", "sampler", "variance vs spp", "MSE vs spp", "MSE vs time", "bias² vs spp",
-                "consistent"), fit_rows),
-        "<h2>Figure of merit: MSE x time, best first</h2>",
-        "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a method "
-        "would reach in one second, assuming MSE ~ 1/time. For comparison, a mature LLVM renderer "
-        "reaches about 5e-6 on the Cornell box at 64 x 64 and 256 spp with a multi-jittered "
-        "sampler (about 1.4e-4 with independent sampling). MSE x time assumes the MSE falls like "
-        "1/time, true of unbiased, consistent methods only: a biased method's MSE stops at its "
-        "squared bias, so read its rank with its verdict.</p>",
-        _table(("rank", "method", "sampler", xlabel, "MSE x time", "verdict", "MSE", "seconds", "efficiency",
-                "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"), fom_rows),
-        "<h2>Figures</h2>",
-        _img(paths["variance"], "Variance against spp, log-log, fitted slopes in the legends "
-                                "(dotted: slope -1)."),
-        _img(paths["mse_time"], "MSE against wall time per estimate."),
-        _img(paths["bias"], f"Bias of the mean value with its {_LEVEL:.1%} interval; an interval "
-                            "away from 0 is a detected bias."),
-        _img(paths["efficiency"], "Efficiency 1 / (MSE x time) per configuration."),
+        "<p>The lecture asks of each method: is it unbiased, is it consistent? Measured here: "
+        "<b>unbiased</b> when no configuration's bias is distinguishable from zero (Welch t test, "
+        f"Sidak-corrected to family-wise alpha = {result.alpha:g}); <b>consistent</b> when, for every "
+        "sampler, the MSE falls with " + xlabel + " and the bias vanishes. The evidence is below.</p>",
+        _verdict_table(result),
+        "<h2>Speed for accuracy</h2>",
+        "<p>MSE against wall time per estimate, one curve per method and sampler (points: the "
+        f"{xlabel} levels). Starred: the efficient configurations, those no other configuration beats "
+        "in both time and MSE" + (f": {html.escape(front_text)}" + (f" and {len(front) - 8} more" if len(front) > 8
+                                                                   else "") if front else "") + ".</p>",
+        _img(paths["mse_time"], "MSE against wall time per estimate; stars mark the efficient (Pareto) "
+                                "configurations."),
     ]
     if is_image:
-        body.append(_img(paths["images"], "Reference, one estimate per method at the largest spp, and "
-                                          "the per-pixel variance across replicates."))
+        body += ["<h2>Images</h2>", _image_tiles(result)]
+    body += [
+        "<h2>Details</h2>",
+        _details("Evidence behind each verdict", *evidence),
+        _details("Fitted rates",
+                 "<p>Least-squares slopes of log(quantity) against log(" + xlabel + ") (MSE also against "
+                 "log(time)), ± their standard errors. Plain Monte Carlo variance falls as 1/N (slope -1); "
+                 "stratified and QMC samplers can do better on smooth integrands.</p>",
+                 _table(("method", "sampler", f"variance vs {xlabel}", f"MSE vs {xlabel}", "MSE vs time",
+                         f"bias² vs {xlabel}", "consistent"), fit_rows)),
+        _details(f"Every configuration: figure of merit MSE x time, best first ({len(fom_rows)} rows)",
+                 "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a "
+                 "method would reach in one second, assuming MSE ~ 1/time, true of unbiased, consistent "
+                 "methods only: a biased method's MSE stops at its squared bias, so read its rank with "
+                 "its verdict. For comparison, a mature LLVM renderer reaches about 5e-6 on the Cornell "
+                 "box at 64 x 64 and 256 spp with a multi-jittered sampler (about 1.4e-4 with independent "
+                 "sampling)." + (" PSNR and SSIM: of the displayed (sRGB) image against the reference, "
+                                 "mean over replicates." if quality else "") + "</p>",
+                 f'<div class="scroll">{_table(fom_header, fom_rows, cls="configs")}</div>'),
+        _details("More figures",
+                 _img(paths["variance"], f"Variance against {xlabel}, log-log, fitted slopes in the "
+                                         "legends (dotted: slope -1)."),
+                 _img(paths["bias"], f"Bias of the mean value with its {_LEVEL:.1%} interval; an "
+                                     "interval away from 0 is a detected bias."),
+                 _img(paths["efficiency"], "Efficiency 1 / (MSE x time) per configuration."),
+                 *([_img(paths["images"], "Reference, one estimate per method at the largest spp, and "
+                                          "the per-pixel variance across replicates.")] if is_image else [])),
+        _details("Settings", _table(("setting", "value"), [(k, v) for k, v in facts])),
+    ]
     if progress_note:
         body.append(f"<p>{html.escape(progress_note)}</p>")
-    body.append("<p>Every number above is in <code>results.csv</code> and <code>fits.csv</code> "
+    body.append("<p class='note'>Every number is in <code>results.csv</code> and <code>fits.csv</code> "
                 "beside this page.</p>")
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>mcvar convergence: "
-            f"{html.escape(result.target)}</title><style>{_CSS}</style></head><body>"
+    page = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<meta name='viewport' content='width=device-width,initial-scale=1'>"
+            f"<link rel='icon' href='data:,'><title>mcvar convergence: "
+            f"{html.escape(result.target)}</title><style>{_CSS}</style>{_PRINT_JS}</head><body>"
             + "\n".join(body) + "</body></html>")
     paths["html"] = out / "report.html"
     paths["html"].write_text(page, encoding="utf-8")
@@ -372,7 +568,7 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
     start = time.perf_counter()
     result = sweep(target, methods=methods, samplers=samplers, spp=spp, replicates=replicates,
                    seed=seed, reference=reference, executor=executor, workers=workers,
-                   cache_dir=Path(out) / ".cache", progress=progress)
+                   cache_dir=Path(out) / ".cache", progress=progress, image_metrics=True)
     elapsed = time.perf_counter() - start
     return write_report(result, out, elapsed=elapsed)
 
@@ -382,11 +578,13 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
 
     Runs :func:`convergence_report` on ``'cornell'`` with
     :data:`DEMO_SETTINGS`: path tracing with Russian roulette (unbiased),
-    path tracing stopped at depth 2 (biased: indirect light is missing) and
-    direct lighting, each with the random, jittered and Sobol samplers at
-    1, 4, 16 and 64 spp, 8 replicates, 32 x 32 pixels.
+    path tracing stopped at depth 3 (biased: the light of longer paths is
+    missing) and direct lighting, each with the random, jittered and Sobol
+    samplers at 1, 4, 16 and 64 spp, 6 replicates, 64 x 64 pixels, against a
+    reference of 8 x 256 spp (its own variance enters every test).
     """
     s = DEMO_SETTINGS
-    return convergence_report(scene_target("cornell", res=s["res"]), out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
+    target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
+    return convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
                               workers=workers, progress=progress)

@@ -30,3 +30,31 @@ def test_converge_parses_lists():
     assert args.methods == ["path", "direct_mis"] and args.spp == [1, 2, 4]
     with pytest.raises(SystemExit):
         build_parser().parse_args(["converge", "cornell", "--spp", "1,x"])
+
+
+def test_converge_measures_a_user_renderer_by_module_function(tmp_path, monkeypatch, capsys):
+    # the user's module lives in the current folder, as it would for `mcvar converge --target`
+    import shutil
+    from pathlib import Path as _Path
+
+    shutil.copy(_Path(__file__).with_name("toy_renderer.py"), tmp_path / "my_toy_renderer.py")
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    code = main(["converge", "--target", "my_toy_renderer:evaluate", "--replicates", "6", "--workers", "1",
+                 "--seed", "3", "--quiet", "--out", str(out)])
+    assert code == 0
+    page = (out / "report.html").read_text()
+    verdicts = page.split('class="verdicts"')[1].split("</table>")[0]
+    assert "<td>mc</td><td>yes</td><td>yes</td><td>both</td>" in verdicts
+    assert "<td>dim</td><td>no</td><td>no</td><td>neither</td>" in verdicts
+    # a missing function, a bad spec and two targets at once are clear errors
+    assert main(["converge", "--target", "my_toy_renderer:nope", "--quiet", "--out", str(out)]) == 2
+    assert "no function or Target named 'nope'" in capsys.readouterr().err
+    assert main(["converge", "--target", "my_toy_renderer:NOT_CALLABLE", "--quiet", "--out", str(out)]) == 2
+    assert "no function or Target named 'NOT_CALLABLE'" in capsys.readouterr().err
+    assert main(["converge", "--target", "no_such_module:evaluate", "--quiet", "--out", str(out)]) == 2
+    assert "cannot import module 'no_such_module'" in capsys.readouterr().err
+    assert main(["converge", "--target", "my_toy_renderer", "--quiet", "--out", str(out)]) == 2
+    assert "module:function" in capsys.readouterr().err
+    assert main(["converge", "cornell", "--target", "my_toy_renderer:evaluate", "--out", str(out)]) == 2
+    assert "not both" in capsys.readouterr().err

@@ -58,3 +58,37 @@ def test_loglog_fit_of_a_perfect_line_has_zero_slope_error_not_nan():
     assert fit.slope == 0.0 and fit.slope_stderr == 0.0
     with pytest.raises(ValueError, match="distinct"):
         loglog_fit([2, 2, 2], [1, 2, 3])
+
+
+def test_psnr_matches_its_definition_and_skimage():
+    from skimage.metrics import peak_signal_noise_ratio as sk_psnr
+    from mcvar.metrics import peak_signal_noise_ratio
+
+    rng = np.random.default_rng(5)
+    ref = rng.random((16, 16, 3))
+    est = ref + 0.01 * rng.standard_normal(ref.shape)
+    expected = 10 * np.log10((ref.max() - ref.min()) ** 2 / mse(ref, est))
+    assert peak_signal_noise_ratio(ref, est) == pytest.approx(expected, rel=1e-12)
+    assert peak_signal_noise_ratio(ref, est, data_range=1.0) == pytest.approx(
+        sk_psnr(ref, est, data_range=1.0), rel=1e-12)
+    assert peak_signal_noise_ratio(ref, ref) == np.inf
+    with pytest.raises(ValueError, match="data_range must be a positive"):
+        peak_signal_noise_ratio(ref, est, data_range=0)
+    with pytest.raises(ValueError, match="reference is constant"):
+        peak_signal_noise_ratio(np.ones((4, 4)), np.zeros((4, 4)))
+
+
+def test_ssim_is_one_for_identity_and_falls_with_noise():
+    from mcvar.metrics import structural_similarity
+
+    rng = np.random.default_rng(6)
+    y, x = np.mgrid[0:32, 0:32] / 31.0
+    ref = np.stack([x, y, x * y], axis=-1)
+    assert structural_similarity(ref, ref) == pytest.approx(1.0)
+    noisy = [structural_similarity(ref, ref + s * rng.standard_normal(ref.shape), data_range=1.0)
+             for s in (0.01, 0.1, 0.5)]
+    assert 1.0 > noisy[0] > noisy[1] > noisy[2]
+    with pytest.raises(ValueError, match="win_size must be odd"):
+        structural_similarity(ref[:5, :5], ref[:5, :5])
+    with pytest.raises(ValueError, match="must be an image"):
+        structural_similarity(np.ones(4), np.ones(4), data_range=1.0)

@@ -36,10 +36,18 @@ def test_html_is_self_contained_and_states_results(fake_report):
     _, _, paths = fake_report
     page = paths["html"].read_text()
     sources = re.findall(r'src="([^"]*)"', page)
-    assert len(sources) == 5 and all(s.startswith("data:image/png;base64,") for s in sources)
+    # 5 figures + the reference + an estimate and an error map per method
+    assert len(sources) == 5 + 1 + 2 * 2 and all(s.startswith("data:image/png;base64,") for s in sources)
     assert "http" not in page.replace("http-equiv", "")  # nothing fetched from elsewhere
-    assert "<td>unbiased</td><td>both</td>" in page and "<td>biased</td><td>neither</td>" in page
+    verdicts = page.split('class="verdicts"')[1].split("</table>")[0]
+    assert "<td>unbiased</td><td>yes</td><td>yes</td><td>both</td>" in verdicts
+    assert "<td>biased</td><td>no</td><td>no</td><td>neither</td>" in verdicts
     assert "Sidak" in page and "± " in page
+    # the verdicts, the frontier and the images come before the first collapsed section
+    first_details = page.index("<details")
+    assert page.index('class="verdicts"') < page.index("Speed for accuracy") < page.index('class="tiles"') \
+        < first_details
+    assert page.count("<details") == 5 and "beforeprint" in page and "@media print" in page
 
 
 def test_csv_holds_the_sweeps_numbers_and_the_table_is_ranked(fake_report):
@@ -56,7 +64,7 @@ def test_csv_holds_the_sweeps_numbers_and_the_table_is_ranked(fake_report):
         assert float(row["mse"]) == m.mse and float(row["bias_pvalue"]) == m.bias_pvalue
     # figure-of-merit table: ranks 1..n with MSE x time ascending
     page = paths["html"].read_text()
-    table = page.split("Figure of merit")[1].split("</table>")[0]
+    table = page.split("figure of merit MSE x time")[1].split("</table>")[0]
     foms = [float(r[4]) for r in re.findall(r"<tr><td>(\d+)</td><td>(\w+)</td><td>(\w+)</td>"
                                             r"<td>(\d+)</td><td>([^<]+)</td>", table)]
     assert len(foms) == 16 and foms == sorted(foms)
@@ -125,3 +133,18 @@ def test_cli_converge_uses_a_user_supplied_reference(tmp_path, capsys):
     with open(out / "results.csv") as fh:
         rows = [r for r in csv.DictReader(fh) if r["method"] == "importance"]
     assert rows and all(float(r["bias"]) == -0.5 for r in rows)
+
+
+def test_pareto_front_keeps_exactly_the_undominated_points():
+    pts = [(1.0, 5.0), (2.0, 3.0), (2.0, 4.0), (3.0, 3.0), (4.0, 1.0), (5.0, 2.0), (1.0, 5.0)]
+    # (2,4) is beaten by (2,3); (3,3) by (2,3); (5,2) by (4,1); the duplicate (1,5) ties, so both stay
+    assert report.pareto_front(pts).tolist() == [True, True, False, False, True, False, True]
+
+
+def test_lecture_claims_come_from_the_chart_and_the_bias_slides():
+    assert report.lecture_claim("cornell", "path") == ("almost", "almost")
+    assert report.lecture_claim("cornell", "photon") == ("yes", "no")
+    assert report.lecture_claim("cornell", "path:3") is None  # the chart says nothing of a depth limit
+    assert report.lecture_claim("cornell", "direct") is None
+    assert report.lecture_claim("lecture", "grid") == ("yes", "no")
+    assert report.lecture_claim("lecture", "single") == ("no", "yes")

@@ -18,12 +18,14 @@ on disk, so an interrupted sweep resumes where it stopped.
 
 Modules, each importing only those listed before it
 (``tests/test_layering.py``): :mod:`~mcvar.experiments.targets`,
-:mod:`~mcvar.experiments.runs` (streams, executors, caches),
+:mod:`~mcvar.experiments.denoising` (a denoised render as a biased but
+consistent method), :mod:`~mcvar.experiments.runs` (streams, executors, caches),
 :mod:`~mcvar.experiments.reference`, :mod:`~mcvar.experiments.analysis`
 (metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`. Every public
 name is importable from ``mcvar.experiments`` itself.
 """
-from .targets import Target, integrand_target, lecture_target, make_target, parse_method, scene_target
+from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
+from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target, photo_target
 from .runs import CACHE_VERSION, SerialExecutor, run_seed
 from .reference import Reference, compute_reference
 from .analysis import ConfigMetrics, MethodFits, Verdict
@@ -41,8 +43,14 @@ __all__ = [
     "lecture_target",
     "scene_target",
     "make_target",
+    "load_target",
     "parse_method",
     "run_seed",
     "compute_reference",
     "sweep",
+    "denoise_tv",
+    "denoise_weight",
+    "denoised_target",
+    "photo_target",
+    "DENOISE_SUFFIX",
 ]

@@ -51,6 +51,12 @@ class ConfigMetrics:
     rounding : float
         Floating-point floor of the bias test's standard error,
         ``64 eps |value|``: an error below it is rounding, not bias or noise.
+    psnr, ssim : float
+        Mean over replicates of :func:`mcvar.metrics.peak_signal_noise_ratio`
+        and :func:`mcvar.metrics.structural_similarity` of the image against
+        the reference, both as displayed (sRGB-encoded, clipped to [0, 1],
+        data range 1); NaN unless the sweep ran with ``image_metrics=True``
+        on an image target.
     """
 
     method: str
@@ -73,11 +79,28 @@ class ConfigMetrics:
     bias_pvalue: float
     bias_detected: bool = False
     rounding: float = 0.0
+    psnr: float = float("nan")
+    ssim: float = float("nan")
 
     @property
     def figure_of_merit(self) -> float:
         """``MSE x time`` (seconds): lower is better; ``1 / efficiency``."""
         return max(self.mse, 0.0) * self.seconds
+
+
+def _image_quality(values: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    """Mean PSNR and SSIM over replicates ``values`` (R, H, W, C), as displayed."""
+    from ..images import linear_to_srgb
+    from ..metrics import peak_signal_noise_ratio, structural_similarity
+
+    side = min(ref.shape[:2])
+    win = min(7, side if side % 2 else side - 1)
+    show = lambda img: np.clip(linear_to_srgb(np.clip(img, 0.0, None)), 0.0, 1.0)  # noqa: E731
+    r = show(ref)
+    psnr = [peak_signal_noise_ratio(r, show(v), data_range=1.0) for v in values]
+    ssim = [structural_similarity(r, show(v), data_range=1.0, win_size=win) if win >= 3 else np.nan
+            for v in values]
+    return float(np.mean(psnr)), float(np.mean(ssim))
 
 
 def _moments(x, ref, ref_var):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +13,8 @@ from .._validation import check_count, check_probability
 from .targets import make_target
 from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, run_seed
 from .reference import Reference, compute_reference
-from .analysis import ConfigMetrics, _config_metrics, _fits, _verdicts, _with_detection
+from .denoising import DENOISE_SUFFIX, denoised_target
+from .analysis import ConfigMetrics, _config_metrics, _fits, _image_quality, _verdicts, _with_detection
 
 
 # --------------------------------------------------------------------------
@@ -94,7 +95,8 @@ def _as_names(names, what: str) -> tuple:
 
 def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8, seed: int = 0,
           reference=None, executor: Executor | None = None, workers: int | None = None,
-          cache_dir=None, res: int = 32, alpha: float = 1e-3, progress: bool = True) -> SweepResult:
+          cache_dir=None, res: int = 32, alpha: float = 1e-3, progress: bool = True,
+          image_metrics: bool = False) -> SweepResult:
     """Run ``target`` for every method x sampler x spp level x replicate and measure it.
 
     Parameters
@@ -128,6 +130,11 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
         Family-wise significance of the bias tests of one method.
     progress : bool
         One tqdm bar for the whole sweep.
+    image_metrics : bool
+        Also measure PSNR and SSIM (:func:`mcvar.metrics.structural_similarity`)
+        of every image replicate against the reference, as displayed: the
+        ``psnr`` and ``ssim`` of each :class:`ConfigMetrics` (NaN otherwise,
+        and for scalar targets).
 
     Returns
     -------
@@ -175,6 +182,9 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
        Statistics 9(3), 1981.
     """
     target = make_target(target, res=res)
+    if methods is not None and any(str(m).endswith(DENOISE_SUFFIX) for m in
+                                   ([methods] if isinstance(methods, str) else methods)):
+        target = denoised_target(target)
     methods = _as_names(methods if methods is not None else target.methods, "methods")
     samplers = _as_names(samplers if samplers is not None else target.samplers, "samplers")
     levels = _as_levels(spp if spp is not None else target.spp)
@@ -256,6 +266,9 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
     per_method = len(samplers) * len(levels)
     alpha_family = 1.0 - (1.0 - alpha) ** (1.0 / per_method)
     metrics = tuple(_with_detection(m, alpha_family) for m in metrics)
+    if image_metrics and ref.value.ndim == 3:
+        metrics = tuple(replace(m, **dict(zip(("psnr", "ssim"), _image_quality(
+            stacked[(m.method, m.sampler, m.spp)], ref.value)))) for m in metrics)
     fits = {}
     for m in methods:
         for s in samplers:

@@ -232,14 +232,77 @@ def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, referen
                                      f"sampler=random")
 
 
+_SPEC = re.compile(r"^([A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*):([A-Za-z_]\w*)$")
+
+
+def load_target(spec: str) -> Target:
+    """A :class:`Target` from ``'module:name'``: your own renderer, measured.
+
+    ``module`` is imported (the current folder first on ``sys.path``, as
+    ``python -m`` does) and ``name`` looked up in it:
+
+    * a :class:`Target`: used as is;
+    * a function ``evaluate(method, sampler, spp, rng) -> ndarray`` (an image
+      ``(H, W, 3)`` or an estimate ``(1,)``, from the numpy Generator
+      ``rng``): wrapped in a Target whose defaults come from the module's
+      optional constants ``METHODS``, ``SAMPLERS`` (default ``('random',)``),
+      ``SPP`` (default ``(1, 4, 16, 64)``) and ``EXACT`` (the exact value),
+      or its function ``reference(rng) -> ndarray`` (one chunk of a
+      high-sample reference; 8 chunks are averaged). Without ``EXACT`` or
+      ``reference``, pass a reference file (``--reference ref.npy``).
+
+    The cache key holds a hash of the module's source file, so editing the
+    renderer invalidates cached runs.
+
+    Examples
+    --------
+    ``mcvar converge --target myrenderer:evaluate --methods path,path_fixed
+    --reference ref.npy`` (see docs/guide-any-renderer.md).
+    """
+    import hashlib
+    import importlib
+    import os
+    import sys
+
+    if not isinstance(spec, str) or _SPEC.match(spec) is None:
+        raise ValueError(f"target must look like 'module:function' (e.g. 'myrenderer:evaluate'); got {spec!r}")
+    module_name, attr = spec.split(":")
+    if os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise ValueError(f"target {spec!r}: cannot import module {module_name!r} ({exc}); run from its "
+                         "folder or put it on PYTHONPATH") from exc
+    obj = getattr(module, attr, None)
+    if isinstance(obj, Target):
+        return obj
+    if not callable(obj):
+        raise ValueError(f"target {spec!r}: {module_name} has no function or Target named {attr!r}")
+    source = getattr(module, "__file__", None)
+    digest = hashlib.sha256(open(source, "rb").read()).hexdigest()[:16] if source else "nofile"
+    exact = getattr(module, "EXACT", None)
+    reference = getattr(module, "reference", None)
+    return Target(name=spec, evaluate=obj, key=f"user={spec};source={digest}",
+                  methods=tuple(getattr(module, "METHODS", ())),
+                  samplers=tuple(getattr(module, "SAMPLERS", ("random",))),
+                  spp=tuple(getattr(module, "SPP", (1, 4, 16, 64))),
+                  exact=None if exact is None else np.asarray(exact, dtype=np.float64),
+                  reference_task=reference if callable(reference) else None,
+                  reference_settings=f"{module_name}.reference" if callable(reference) else "")
+
+
 def make_target(name, *, res: int = 32) -> Target:
     """A :class:`Target` from a name: ``'lecture'`` (:func:`lecture_target`), an
-    integrand of ``mcvar.examples.PROBLEMS``, otherwise a scene of
+    integrand of ``mcvar.examples.PROBLEMS``, ``'module:function'``
+    (:func:`load_target`: your own renderer), otherwise a scene of
     ``mcvar.scene.load_scene``; a :class:`Target` is returned as is."""
     if isinstance(name, Target):
         return name
     if not isinstance(name, str):
         raise TypeError(f"target must be a Target or a name string; got {type(name).__name__}")
+    if ":" in name:
+        return load_target(name)
     from ..examples import PROBLEMS
 
     if name == "lecture":
