@@ -52,7 +52,7 @@ STATE_DIM = 6
 #: ``sigma`` and ``p_large`` as pbrt-v4 (0.01, 0.3); 4096 chains run at once (a
 #: wavefront of 4096 paths per step: measured on cornell-door 32 x 32, 3-4x the
 #: speed of 1024 chains at equal MSE).
-#: ``n_bootstrap=None``: ``max(4 * chains, mutations // 8)`` paths.
+#: ``n_bootstrap=None``: ``max(4 * chains, mutations // 4)`` paths.
 OPTIONS = {"chains": 4096, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None,
            "bootstrap": True, "splat": "expected"}
 
@@ -141,10 +141,10 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, trac
         Kelemen's mutations (:func:`mcvar.mcmc.metropolis`).
     n_bootstrap : int or None
         Independent paths that estimate ``b`` and seed the chains; None:
-        ``max(4 * chains, N // 8)`` for ``N`` mutations (pbrt uses 100 000
+        ``max(4 * chains, N // 4)`` for ``N`` mutations (pbrt uses 100 000
         for images of ~10^8 mutations; here images are small, so the
         bootstrap is a fixed fraction of the work, and its relative error in
-        ``b``, a global scale on the image, stays below ``sqrt(8 / N)`` times
+        ``b``, a global scale on the image, stays below ``sqrt(4 / N)`` times
         the coefficient of variation of ``f``).
     bootstrap : bool
         True: start the chains at bootstrap paths resampled ``∝ f`` (no
@@ -199,7 +199,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, trac
     chains = min(chains, n_mut)
     n_steps = -(-n_mut // chains)
     if n_bootstrap is None:
-        n_bootstrap = max(4 * chains, n_mut // 8)
+        n_bootstrap = max(4 * chains, n_mut // 4)
     n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
     tracer = tracer if tracer is not None else Tracer(scene)
     counter = [0]
