@@ -100,12 +100,15 @@ def test_pssmlt_bookkeeping_and_bad_input(cornell):
 
 def test_cornell_door_geometry_and_light_only_through_the_slit():
     door = load_scene("cornell-door")
-    assert door.name == "cornell-door" and door.n_triangles == 32 - 10 + 4     # no tall block, 2 wall quads
+    assert door.name == "cornell-door" and door.n_triangles == 32 - 10 + 6     # no tall block, 3 wall quads
     assert door.light_origin[0, 2] > 400.0                                      # the light is behind the wall
     with pytest.raises(ValueError, match="slit"):
         load_scene("cornell-door", slit=600.0)
     with pytest.raises(ValueError, match="wall_z"):
         load_scene("cornell-door", wall_z=500.0)
+    with pytest.raises(ValueError, match="height"):
+        load_scene("cornell-door", height=600.0)
+    assert load_scene("cornell-door", height=548.8).n_triangles == 32 - 10 + 4  # full height: no lintel
     # narrowing the slit darkens the visible room: direct light (depth 2) through a
     # 20-unit slit vs a 2-unit one (8 x 8 pixels, 256 spp): brighter by > 5 SE
     wide = render(door, integrator="direct", spp=256, res=8, rng=1)
