@@ -249,6 +249,8 @@ class Chain:
     thin : int
         Stride between kept steps (1: all kept; see :data:`MAX_STORED`).
     n_steps : int
+        Steps done per chain (fewer than asked if Ctrl-C stopped the walk:
+        the finished steps are kept).
     histogram : ndarray or None
         :func:`image_walk` only: the splatted visit density, shape
         ``(H, W)``, summing to 1.
@@ -385,7 +387,9 @@ def _walk(evaluate, x, fx, payload, n_steps, sigma, p_large, rng, visit=None, th
     py, a, acc)`` is called at every step with the current state, the
     proposal, the acceptance probability and the accept flags (before the
     move), for splatting.
-    Returns the kept states, values, acceptance flags and the acceptance count.
+    Returns the kept states, values, acceptance flags, the acceptance count
+    and the number of steps done (fewer than ``n_steps`` after Ctrl-C, which
+    keeps the finished steps).
     """
     chains, dim = x.shape
     n_kept = -(-n_steps // thin)
@@ -393,22 +397,30 @@ def _walk(evaluate, x, fx, payload, n_steps, sigma, p_large, rng, visit=None, th
     values = np.empty((n_kept, chains))
     accepted = np.empty((n_kept, chains), dtype=bool)
     n_acc = 0
-    for step in range(n_steps):
-        y = _mutate(x, sigma, p_large, rng)
-        fy, py = evaluate(y)
-        a = np.minimum(1.0, fy / fx)               # fx > 0: chains only move to f > 0
-        acc = rng.random(chains) < a
-        if visit is not None:
-            visit(x, fx, payload, y, fy, py, a, acc)
-        x = np.where(acc[:, None], y, x)
-        fx = np.where(acc, fy, fx)
-        if payload is not None:
-            payload = np.where(acc.reshape((-1,) + (1,) * (payload.ndim - 1)), py, payload)
-        n_acc += int(acc.sum())
-        if step % thin == 0:
-            k = step // thin
-            samples[k], values[k], accepted[k] = x, fx, acc
-    return samples, values, accepted, n_acc
+    done = 0
+    try:
+        for step in range(n_steps):
+            y = _mutate(x, sigma, p_large, rng)
+            fy, py = evaluate(y)
+            a = np.minimum(1.0, fy / fx)               # fx > 0: chains only move to f > 0
+            acc = rng.random(chains) < a
+            if visit is not None:
+                visit(x, fx, payload, y, fy, py, a, acc)
+            x = np.where(acc[:, None], y, x)
+            fx = np.where(acc, fy, fx)
+            if payload is not None:
+                payload = np.where(acc.reshape((-1,) + (1,) * (payload.ndim - 1)), py, payload)
+            n_acc += int(acc.sum())
+            if step % thin == 0:
+                k = step // thin
+                samples[k], values[k], accepted[k] = x, fx, acc
+            done = step + 1
+    except KeyboardInterrupt:
+        if done == 0:
+            raise
+        # Ctrl-C keeps the finished steps (a splat in progress is at most one step off)
+    kept = -(-done // thin)
+    return samples[:kept], values[:kept], accepted[:kept], n_acc, done
 
 
 def _stride(n_steps, chains, dim, thin):
@@ -488,8 +500,9 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
         return _evaluate(f, u), None
 
     x, fx, _, b = _bootstrap(evaluate, dim, chains, n_bootstrap, rng)
-    samples, values, accepted, n_acc = _walk(evaluate, x, fx, None, n_steps, sigma, p_large, rng, thin=thin)
-    return Chain(samples, values, accepted, n_acc / (n_steps * chains), b, thin, n_steps)
+    samples, values, accepted, n_acc, done = _walk(evaluate, x, fx, None, n_steps, sigma, p_large, rng,
+                                                   thin=thin)
+    return Chain(samples, values, accepted, n_acc / (done * chains), b, thin, done)
 
 
 # ---------------------------------------------------------------------------
@@ -579,8 +592,8 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
             hist[:] += np.bincount(np.where(acc, py, px), minlength=n_pix)
 
     x, fx, px, b = _bootstrap(evaluate, dim, chains, n_bootstrap, rng)
-    samples, values, accepted, n_acc = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng,
-                                             visit=visit, thin=thin)
+    samples, values, accepted, n_acc, done = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng,
+                                                   visit=visit, thin=thin)
     hist = hist.reshape(height, width) / hist.sum()
-    return Chain(samples, values, accepted, n_acc / (n_steps * chains), b, thin, n_steps,
+    return Chain(samples, values, accepted, n_acc / (done * chains), b, thin, done,
                  histogram=hist, splat=splat)

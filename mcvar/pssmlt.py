@@ -75,6 +75,8 @@ class PssmltFilm:
         The bootstrap's estimate of the image's mean luminance.
     b_stderr : float
     acceptance_rate : float
+    interrupted : bool
+        Ctrl-C stopped the chains early (``spp`` counts the finished steps).
     """
 
     sum: np.ndarray
@@ -83,6 +85,7 @@ class PssmltFilm:
     b: float
     b_stderr: float
     acceptance_rate: float
+    interrupted: bool = False
 
 
 def _path_function(scene: Scene, res, tracer: Tracer, max_depth, rng, counter):
@@ -229,15 +232,16 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, trac
         def visit(x, fx, px, y, fy, py, a, acc):
             _splat(film, n_pix, np.where(acc[:, None], py, px), np.ones(acc.shape[0]))
 
-    _, _, _, n_acc = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng, visit=visit, thin=n_steps)
-    done = chains * n_steps / n_pix
+    _, _, _, n_acc, n_done = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng, visit=visit,
+                                   thin=n_steps)
+    done = chains * n_done / n_pix
     # image = b / spp * film  ->  sum = b * film, so that sum / spp is the image
     return PssmltFilm(sum=film * b, spp=done, rays=counter[0], b=float(b), b_stderr=float(b_se),
-                      acceptance_rate=n_acc / (chains * n_steps))
+                      acceptance_rate=n_acc / (chains * n_done), interrupted=n_done < n_steps)
 
 
 def render_pssmlt(scene: Scene, *, spp: int = 16, res=64, rng=None, max_depth=None, batches: int = 1,
-                  **options) -> Render:
+                  progress: bool = False, **options) -> Render:
     """Render ``scene`` by PSSMLT: ``batches`` independent runs of ``spp / batches`` mutations per pixel.
 
     Returns a :class:`mcvar.integrators.Render` (``integrator='pssmlt'``);
@@ -245,7 +249,8 @@ def render_pssmlt(scene: Scene, *, spp: int = 16, res=64, rng=None, max_depth=No
     to match the scatter of the ``batches`` independent runs
     (``spp * Var(batch images) / batches``, so that ``standard_error`` is the
     standard error of the mean image); None for one batch. Options: those of
-    :data:`OPTIONS` (see :func:`pssmlt_film`).
+    :data:`OPTIONS` (see :func:`pssmlt_film`). ``progress=True`` shows a tqdm
+    bar over batches; Ctrl-C keeps the finished batches (``interrupted=True``).
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a mcvar.scene.Scene; got {type(scene).__name__}")
@@ -261,19 +266,37 @@ def render_pssmlt(scene: Scene, *, spp: int = 16, res=64, rng=None, max_depth=No
     tracer = Tracer(scene)
     start = time.perf_counter()
     images, rays, done = [], 0, 0.0
-    for stream in as_rng(rng).spawn(batches):
-        run = pssmlt_film(scene, (width, height), spp / batches, rng=stream, max_depth=max_depth,
-                          tracer=tracer, **opts)
-        images.append(run.sum / run.spp)
-        rays += run.rays
-        done += run.spp
+    interrupted = False
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=batches, unit="batch", desc=f"{scene.name} pssmlt", leave=False)
+    try:
+        for stream in as_rng(rng).spawn(batches):
+            run = pssmlt_film(scene, (width, height), spp / batches, rng=stream, max_depth=max_depth,
+                              tracer=tracer, **opts)
+            images.append(run.sum / run.spp)
+            rays += run.rays
+            done += run.spp
+            if bar is not None:
+                bar.update(1)
+            if run.interrupted:
+                raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        if not images:
+            raise
+        interrupted = True                     # Ctrl-C keeps the finished batches
+    finally:
+        if bar is not None:
+            bar.close()
     seconds = time.perf_counter() - start
     stack = np.stack(images)
     image = stack.mean(axis=0).reshape(height, width, 3)
     variance = None
-    if batches >= 2:
-        variance = (done * stack.var(axis=0, ddof=1) / batches).reshape(height, width, 3)
-    return Render(image=image, spp=int(round(done)), seconds=seconds, interrupted=False, variance=variance,
+    if len(images) >= 2:
+        variance = (done * stack.var(axis=0, ddof=1) / len(images)).reshape(height, width, 3)
+    return Render(image=image, spp=int(round(done)), seconds=seconds, interrupted=interrupted, variance=variance,
                   rays=rays, scene=scene.name, integrator="pssmlt", sampler="random", res=(width, height),
-                  max_depth=max_depth, heuristic="power", batch_spp=int(round(done / batches)), workers=1,
+                  max_depth=max_depth, heuristic="power", batch_spp=int(round(done / len(images))), workers=1,
                   precision="float32")

@@ -97,6 +97,22 @@ def test_chain_shapes_thinning_and_domain(monkeypatch):
     assert t.acceptance_rate == c.acceptance_rate      # same stream, same walk
 
 
+def test_ctrl_c_keeps_the_finished_steps():
+    calls = [0]
+
+    def f(u):
+        calls[0] += 1
+        if calls[0] == 1 + 31:                 # the bootstrap, then 30 steps, then Ctrl-C
+            raise KeyboardInterrupt
+        return cos_bump(u)
+
+    c = metropolis(f, 2, 100, chains=4, n_bootstrap=500, rng=8)
+    assert c.n_steps == 30 and c.samples.shape == (30, 4, 2) and 0 < c.acceptance_rate <= 1
+    with pytest.raises(KeyboardInterrupt):     # nothing finished: nothing to keep
+        metropolis(lambda u: (_ for _ in ()).throw(KeyboardInterrupt) if len(u) == 4 else cos_bump(u),
+                   2, 10, chains=4, n_bootstrap=500, rng=8)
+
+
 def test_bootstrap_estimates_the_integral():
     # b = integral of prod(1 + cos 2 pi u_i) + 2 = 3 over [0,1)^2
     c = metropolis(lambda u: cos_bump(u) + 2.0, 2, 5, chains=4, rng=2026)
