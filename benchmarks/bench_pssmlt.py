@@ -21,15 +21,12 @@ import os
 import numpy as np
 
 from mcvar.integrators import INTEGRATORS, render
-from mcvar.pssmlt import render_pssmlt
 from mcvar.scene import load_scene
 
 
 def _run(method, scene, spp, res, rng):
-    if method == "pssmlt":
-        return render_pssmlt(scene, spp=spp, res=res, rng=rng)
     if method == "pssmlt-1k":                                   # longer chains, smaller wavefronts
-        return render_pssmlt(scene, spp=spp, res=res, rng=rng, chains=1024)
+        return render(scene, integrator="pssmlt", spp=spp, res=res, rng=rng, chains=1024)
     return render(scene, integrator=method, spp=spp, res=res, rng=rng)
 
 

@@ -17,7 +17,6 @@ LAYERS = {
     "mcmc": 4,
     "integrators": 5,
     "experiments": 6,
-    "pssmlt": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
 

@@ -6,9 +6,14 @@ import pytest
 from scipy import stats
 
 from mcvar.envmap import LUMINANCE_WEIGHTS
-from mcvar.integrators import render
-from mcvar.pssmlt import OPTIONS, STATE_DIM, pssmlt_film, render_pssmlt
+from mcvar.integrators import METHODS, render
+from mcvar.integrators.pssmlt import OPTIONS, _path_function, pssmlt_film, state_dim
 from mcvar.scene import load_scene
+from mcvar.tracer import Tracer
+
+
+def render_pssmlt(scene, **kw):
+    return render(scene, integrator="pssmlt", **kw)
 
 LUM = np.asarray(LUMINANCE_WEIGHTS)
 RES = 16
@@ -85,7 +90,11 @@ def test_pssmlt_bookkeeping_and_bad_input(cornell):
     run = pssmlt_film(cornell, (4, 4), 2, rng=3, chains=8)
     assert run.spp == 8 * 4 / 16 and run.sum.shape == (16, 3) and 0 < run.acceptance_rate <= 1
     assert run.rays > 0 and run.b > 0 and run.b_stderr > 0
-    assert STATE_DIM == 6 and set(OPTIONS) == {"chains", "sigma", "p_large", "n_bootstrap", "bootstrap", "splat"}
+    assert METHODS["pssmlt"].kind == "chain" and dict(METHODS["pssmlt"].options) == OPTIONS
+    assert state_dim(6) == 2 + 6 * 5 and state_dim(6, max_depth=2) == 8 and state_dim(1) == 2
+    # two independent batches: the film's variance from their spread
+    r = render_pssmlt(cornell, spp=8, res=4, rng=5, batch_spp=4, chains=16)
+    assert r.spp == 8 and r.variance is not None and np.all(np.isfinite(r.variance))
     with pytest.raises(ValueError, match="sigma"):
         pssmlt_film(cornell, (4, 4), 1, sigma=0.0)
     with pytest.raises(ValueError, match="p_large"):
@@ -94,8 +103,21 @@ def test_pssmlt_bookkeeping_and_bad_input(cornell):
         pssmlt_film(cornell, (4, 4), float("nan"))
     with pytest.raises(ValueError, match="option"):
         render_pssmlt(cornell, spp=1, res=4, colour="red")
+    with pytest.raises(ValueError, match="sigma"):
+        render_pssmlt(cornell, spp=1, res=4, sigma=-1.0)
     with pytest.raises(ValueError, match="carries light"):
         pssmlt_film(load_scene("cornell-door", slit=1e-6), (2, 2), 1, n_bootstrap=4, chains=2, rng=0)
+
+
+def test_a_path_is_a_pure_function_of_the_state(cornell):
+    """With max_depth <= state_depth the chain's target is deterministic in u
+    (the primary sample space); beyond the cap the tail is fresh (documented)."""
+    u = np.random.default_rng(9).random((512, state_dim(6, 4)))
+    a = _path_function(cornell, (8, 8), Tracer(cornell), 4, "power", np.random.default_rng(1), [0])(u)
+    b = _path_function(cornell, (8, 8), Tracer(cornell), 4, "power", np.random.default_rng(2), [0])(u)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert np.count_nonzero(a[0]) > 100
 
 
 def test_cornell_door_geometry_and_light_only_through_the_slit():

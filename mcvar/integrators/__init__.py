@@ -16,6 +16,7 @@ module             holds
                    ``direct_bsdf``; :func:`trace_paths`
 ``aov``            ``albedo``, ``normal``, ``depth``, ``raster``
 ``driver``         :func:`render`, :class:`WorkerPool`, batches and seeds
+``pssmlt``         primary-sample-space Metropolis light transport (``chain``)
 =================  ===========================================================
 
 A new method is one module that builds a :class:`Method` and calls
@@ -33,6 +34,8 @@ from .aov import aov_method
 from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
                      estimate_render_bytes, render)
 from .stream import WHOLE_SET_FLOATS, sample_slices as _sample_slices
+
+from . import pssmlt  # noqa: F401  (registers 'pssmlt')
 
 #: Method names accepted by :func:`render` when the package was imported
 #: (:data:`METHODS` is the live registry).
