@@ -3,7 +3,7 @@
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_pssmlt.py [--quick] [--res 32]``
 
 For each scene: a path-traced reference (``--ref-spp``, default 8192 at 32 x 32),
-then ``path`` and ``pssmlt`` (``mcvar.pssmlt`` defaults) at a ladder of spp,
+then ``path`` and ``pssmlt`` (``render(..., integrator="pssmlt")`` defaults) at a ladder of spp,
 interleaved, ``--reps`` independent runs each. Prints the median wall time, the
 mean MSE against the reference (the reference's own variance, ``variance /
 spp`` per pixel, subtracted) with its standard error over the runs, the
