@@ -16,6 +16,7 @@ LAYERS = {
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
     "examples": 4,
     "scene": 4, "tracer": 4,
+    "mcmc": 4,
     "integrators": 5,
     "experiments": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
@@ -30,7 +31,7 @@ PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
-    "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "driver", "__init__"],
+    "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "pssmlt", "driver", "__init__"],
 }
 
 

@@ -17,6 +17,7 @@ module             holds
 ``aov``            ``albedo``, ``normal``, ``depth``, ``raster``
 ``position``       the ``position`` AOV (the example of a one-module method)
 ``driver``         :func:`render`, :class:`WorkerPool`, batches and seeds
+``pssmlt``         primary-sample-space Metropolis light transport (``chain``)
 =================  ===========================================================
 
 A new method is one module that builds a :class:`Method` and calls
@@ -35,6 +36,8 @@ from . import position  # noqa: F401  (registers the 'position' AOV: the example
 from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
                      estimate_render_bytes, render)
 from .stream import WHOLE_SET_FLOATS, sample_slices as _sample_slices
+
+from . import pssmlt  # noqa: F401  (registers 'pssmlt')
 
 #: Method names accepted by :func:`render` when the package was imported
 #: (:data:`METHODS` is the live registry).
