@@ -124,15 +124,15 @@ def run_first_hit_batch(shade, job: BatchJob, miss=None) -> BatchResult:
     return camera_result(job, out, n, "first-hit method")
 
 
-def aov_method(name: str, shade, summary: str, miss=None) -> Method:
+def aov_method(name: str, shade, summary: str, miss=None, lecture=None) -> Method:
     """A first-hit :class:`~mcvar.integrators.registry.Method` from one shading function
     ``shade(h: FirstHit) -> (m, 3)`` (and optionally ``miss(h, rows) -> (k, 3)``)."""
     return Method(name, "first_hit", partial(run_first_hit_batch, shade, miss=miss), summary,
-                  uses_max_depth=False)
+                  uses_max_depth=False, lecture=lecture)
 
 
 register(aov_method("albedo", _albedo, "first-hit albedo (AOV)"))
 register(aov_method("normal", _normal, "first-hit shading normal facing the camera (AOV)"))
 register(aov_method("depth", _depth, "first-hit distance from the camera, 0 on a miss (AOV)"))
 register(aov_method("raster", _raster, "first hit shaded by each light as an unshadowed point light",
-                    miss=_raster_miss))
+                    miss=_raster_miss, lecture=("no", "no")))
