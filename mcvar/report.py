@@ -440,7 +440,8 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     for i, m in enumerate(ranked):
         row = [i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
                _fmt((m.method, m.sampler, m.spp) in efficient), _fmt(m.mse), _fmt(m.seconds),
-               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2), f"{m.bias_z:.2f}",
+               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
+               "exact (zero variance)" if m.deterministic else f"{m.bias_z:.2f}",
                _fmt(m.bias_pvalue), _fmt(m.bias_detected)]
         if quality:
             row += [_fmt(m.psnr, 4), _fmt(m.ssim, 3)]

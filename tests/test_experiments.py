@@ -350,6 +350,35 @@ def test_zero_variance_estimators_are_judged_by_rounding_not_by_z_infinity():
     assert result.verdicts["offset"].label == "neither"  # biased, and the bias never falls
 
 
+
+def test_zero_variance_evidence_states_the_exact_bias_not_a_rounding_t(tmp_path):
+    """A deterministic estimator's bias is its error, known exactly: the evidence
+    and the report say 'bias = X exactly', not |t| = bias / rounding floor (~1e13)."""
+    from mcvar.report import write_report
+
+    grid = ex.sweep("lecture", methods=["grid"], replicates=4, seed=5, workers=1, progress=False)
+    assert all(m.deterministic and m.bias_detected for m in grid.metrics)
+    assert abs(grid.metrics[0].bias_z) > 1e12  # the number the text must not show
+    ev = grid.verdicts["grid"].evidence
+    assert "|t|" not in ev and "t = " not in ev and "e+1" not in ev
+    assert "zero variance in 5 of 5 configurations" in ev and "bias nonzero beyond rounding in 5" in ev
+    for m in grid.metrics:  # fixed_grid_estimate's bias on the board is 2 / m^2 for odd m
+        assert f"{2 / m.spp:+.4g} (random, {m.spp} spp)" in ev
+    page = write_report(grid, tmp_path)["html"].read_text()
+    assert "exact (zero variance)" in page and "e+1" not in page
+
+    target = ex.Target(name="zero-variance", evaluate=_zero_variance_evaluate, key="zero-variance-v1",
+                       methods=("exact", "offset"), samplers=("random",), spp=(1, 3, 7, 49),
+                       exact=np.array([2.0 * np.pi / 3.0]))
+    result = ex.sweep(target, replicates=4, seed=3, executor=ex.SerialExecutor(), progress=False)
+    assert "bias = 0 (to rounding) (random, 1 spp)" in result.verdicts["exact"].evidence
+    assert "nonzero beyond rounding in 4: bias = +1e-09 (random, 1 spp)" in result.verdicts["offset"].evidence
+    # an estimator that scatters keeps its t test
+    noisy = ex.sweep("lecture", methods=["uniform"], spp=[1, 9, 49], replicates=4, seed=5, workers=1,
+                     progress=False)
+    assert not any(m.deterministic for m in noisy.metrics)
+    assert "largest |t| = " in noisy.verdicts["uniform"].evidence
+
 def _scalar_evaluate(method, sampler, spp, rng):
     # Heavy-ish tails like a Monte Carlo contribution; 'mc' averages spp of them,
     # 'single' is the lecture's one random sample whatever spp says.

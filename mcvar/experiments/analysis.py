@@ -51,6 +51,13 @@ class ConfigMetrics:
     rounding : float
         Floating-point floor of the bias test's standard error,
         ``64 eps |value|``: an error below it is rounding, not bias or noise.
+    deterministic : bool
+        True when neither the replicates nor the reference scatter (every
+        replicate's mean value identical, the reference exact): the estimator
+        has zero variance, its bias is the error itself, measured exactly, and
+        ``bias_z`` only divides it by the rounding floor (a fixed grid's bias
+        of 2/m^2 gives |t| ~ 1e13: certain, but not a statistic to print).
+        Verdict evidence and reports then say 'bias = X exactly'.
     psnr, ssim : float
         Mean over replicates of :func:`mcvar.metrics.peak_signal_noise_ratio`
         and :func:`mcvar.metrics.structural_similarity` of the image against
@@ -79,6 +86,7 @@ class ConfigMetrics:
     bias_pvalue: float
     bias_detected: bool = False
     rounding: float = 0.0
+    deterministic: bool = False
     psnr: float = float("nan")
     ssim: float = float("nan")
 
@@ -142,7 +150,8 @@ def _config_metrics(method, sampler, spp, values, seconds, ref: Reference) -> Co
         dof, p = float("inf"), (1.0 if diff == 0 else 0.0)
     return ConfigMetrics(method, sampler, int(spp), r, variance, float(stderr[0]), bias2,
                          float(stderr[1]), mse, float(stderr[2]), rel, sec, eff, diff, float(se),
-                         float(z), dof, p, rounding=float(rounding))
+                         float(z), dof, p, rounding=float(rounding),
+                         deterministic=bool(a == 0.0 and bvar == 0.0))
 
 
 # --------------------------------------------------------------------------
@@ -231,13 +240,24 @@ def _fits(method, sampler, rows: Sequence[ConfigMetrics], alpha: float) -> Metho
     words = [f"MSE {first.mse:.3g} at {first.spp} -> {last.mse:.3g} at {last.spp} spp "
              f"({'falls' if mse_falls else 'does not fall'} significantly"
              + (f"; slope {f_mse.slope:.2f} ± {f_mse.slope_stderr:.2f})" if f_mse else ")"),
-             f"bias at {last.spp} spp {'detected' if last.bias_detected else 'not detected'} "
-             f"(t = {last.bias_z:.1f})"]
+             f"bias at {last.spp} spp " + _bias_words(last)]
     if last.bias_detected:
         words.append(f"bias² {first.bias2:.3g} -> {last.bias2:.3g} "
                      f"({'falls' if bias_falls else 'does not fall'} significantly)")
     return MethodFits(method, sampler, f_var, f_mse, f_time, f_b2, bool(mse_falls and bias_gone),
                       "; ".join(words))
+
+
+def _exact_bias(m: ConfigMetrics) -> str:
+    """The bias of a zero-variance configuration (its error): '+0.002081' or '0 (to rounding)'."""
+    return "0 (to rounding)" if abs(m.bias) <= m.rounding else f"{m.bias:+.4g}"
+
+
+def _bias_words(m: ConfigMetrics) -> str:
+    """'detected (t = ...)' / 'not detected (t = ...)', or the exact bias when deterministic."""
+    if m.deterministic:
+        return f"= {_exact_bias(m)} exactly (zero variance, deterministic)"
+    return f"{'detected' if m.bias_detected else 'not detected'} (t = {m.bias_z:.1f})"
 
 
 def _verdicts(methods, metrics, fits, alpha_family) -> dict:
@@ -250,10 +270,20 @@ def _verdicts(methods, metrics, fits, alpha_family) -> dict:
         consistent = all(f.consistent for f in mfits)
         label = {(True, True): "both", (True, False): "unbiased",
                  (False, True): "consistent", (False, False): "neither"}[(unbiased, consistent)]
-        worst = max(rows, key=lambda m: abs(m.bias_z))
-        ev = [f"bias test: {len(detected)} of {len(rows)} configurations reject zero bias at "
-              f"Sidak-corrected p < {alpha_family:.2g} (largest |t| = {abs(worst.bias_z):.1f} at "
-              f"{worst.sampler}, {worst.spp} spp)"]
+        noisy = [m for m in rows if not m.deterministic]
+        exact = [m for m in rows if m.deterministic]
+        ev = []
+        if noisy:
+            worst = max(noisy, key=lambda m: abs(m.bias_z))
+            ev.append(f"bias test: {sum(m.bias_detected for m in noisy)} of {len(noisy)} configurations "
+                      f"reject zero bias at Sidak-corrected p < {alpha_family:.2g} (largest |t| = "
+                      f"{abs(worst.bias_z):.1f} at {worst.sampler}, {worst.spp} spp)")
+        if exact:
+            nonzero = sum(abs(m.bias) > m.rounding for m in exact)
+            ev.append(f"zero variance in {len(exact)} of {len(rows)} configurations (deterministic: "
+                      f"identical replicates, so no t statistic), bias nonzero beyond rounding in {nonzero}: "
+                      "bias = " + ", ".join(f"{_exact_bias(m)} ({m.sampler}, {m.spp} spp)" for m in exact)
+                      + " exactly")
         ev += [f"{f.sampler}: {'consistent' if f.consistent else 'not consistent'} ({f.evidence})"
                for f in mfits]
         out[method] = Verdict(method, unbiased, consistent, label, "; ".join(ev))
