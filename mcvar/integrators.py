@@ -167,7 +167,9 @@ class _Shading:
         self.light_area = scene.light_area
         self.light_normal = scene.light_normal
         self.env = scene.environment
-        self.n_emitters = scene.n_lights + (1 if self.env is not None else 0)
+        # emitters NEE chooses from (uniformly): area lights, point lights, the environment
+        self.n_points = scene.n_point_lights
+        self.n_emitters = scene.n_lights + self.n_points + (1 if self.env is not None else 0)
         self.select_pdf = 1.0 / self.n_emitters if self.n_emitters else 0.0
 
     def emission(self, prim, p, d):
@@ -201,7 +203,10 @@ class _Shading:
 
         Returns ``(wi, dist, le, pdf)``: unit world direction, distance (inf
         for the environment), emitted radiance towards ``p`` and the solid
-        angle density (0 where the sample cannot contribute).
+        angle density (0 where the sample cannot contribute). A point light
+        (a Dirac delta in solid angle) returns ``le = I / r^2`` and
+        ``pdf`` = its selection probability, so ``f le cos / pdf`` is the
+        estimate; its MIS weight is 1 (:meth:`chosen_light` gives -2).
         """
         n = p.shape[0]
         n_em = self.n_emitters
@@ -235,8 +240,18 @@ class _Shading:
             dist[on_light] = r
             le[on_light] = np.where(front[:, None], np.take(scene.light_radiance, li, axis=0), 0.0)
             pdf[on_light] = pdf_l
-        if self.env is not None and not np.all(on_light):
-            sel = ~on_light
+        on_point = (k >= scene.n_lights) & (k < scene.n_lights + self.n_points)
+        if np.any(on_point):
+            j = k[on_point] - scene.n_lights
+            v = np.take(scene.point_light_position, j, axis=0) - p[on_point]
+            d2 = np.einsum("ij,ij->i", v, v)
+            r = np.sqrt(d2)
+            wi[on_point] = v / np.maximum(r, 1e-300)[:, None]
+            dist[on_point] = r
+            le[on_point] = np.take(scene.point_light_intensity, j, axis=0) / np.maximum(d2, 1e-300)[:, None]
+            pdf[on_point] = self.select_pdf
+        if self.env is not None and not np.all(on_light | on_point):
+            sel = ~(on_light | on_point)
             w_env, pdf_env = self.env.sample(u[sel])
             wi[sel] = w_env
             le[sel] = self.env.radiance(w_env)
@@ -244,13 +259,15 @@ class _Shading:
         return wi, dist, le, pdf
 
     def chosen_light(self, u):
-        """Light index that :meth:`sample_emitters` picks for each ``u`` (-1: the environment)."""
+        """Light index that :meth:`sample_emitters` picks for each ``u`` (-1: the
+        environment, -2: a point light)."""
         n_em = self.n_emitters
         if n_em > 1:
             k = np.minimum((np.asarray(u)[:, 0] * n_em).astype(np.int64), n_em - 1)
         else:
             k = np.zeros(np.shape(u)[0], dtype=np.int64)
-        return np.where(k < self.scene.n_lights, k, -1)
+        n_l = self.scene.n_lights
+        return np.where(k < n_l, k, np.where(k < n_l + self.n_points, -2, -1))
 
     def environment(self, d):
         return self.env.radiance(d)
@@ -703,6 +720,8 @@ def _next_event(sh, wf, tracer, groups, p, ng, frame, wo_l, prim, beta, u_light,
         f[:, a:b] = sh.materials[mi].eval(wo_g, wi_g).T
         if mis:
             pdf_b[a:b] = sh.materials[mi].pdf(wo_g, wi_g)
+    if mis and sh.n_points:
+        pdf_b[light == -2] = 0.0        # a point light: BSDF sampling cannot hit it, weight 1
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.abs(wi_l[1]) / np.where(pdf_l > 0, pdf_l, np.inf)
     if mis:
