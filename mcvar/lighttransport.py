@@ -770,4 +770,5 @@ def render_staging(scene, integrator="bdpt", *, spp=4, res=16, rng=None, max_dep
         rays += r
         images.append((total / per).reshape(h, w, 3))
     images = np.array(images)
-    return images.mean(0), images.std(0, ddof=1) / np.sqrt(batches), strat, rays
+    se = images.std(0, ddof=1) / np.sqrt(batches) if batches > 1 else None
+    return images.mean(0), se, strat, rays
