@@ -823,3 +823,41 @@ def render_staging(scene, integrator="bdpt", *, spp=4, res=16, rng=None, max_dep
     images = np.array(images)
     se = images.std(0, ddof=1) / np.sqrt(batches) if batches > 1 else None
     return images.mean(0), se, strat, rays
+
+
+def strategy_grid(per_strategy, res, depth=STRATEGY_DEPTH, gap=2):
+    """The lecture's figure: every strategy's weighted image in a grid (linear radiance).
+
+    Row ``d - 1`` holds the strategies of depth ``d = s + t - 1`` (1 ..
+    ``depth``), column ``s`` (light vertices, 0 .. ``d``) with ``t = d + 1 -
+    s`` camera vertices; cells without a strategy and the ``gap``-pixel
+    borders are 0. ``per_strategy`` maps ``(s, t)`` to images ``(H, W, 3)``
+    or per-pixel arrays ``(W H, 3)``.
+    """
+    w, h = res
+    grid = np.zeros((depth * (h + gap) - gap, (depth + 1) * (w + gap) - gap, 3))
+    for (s, t), img in per_strategy.items():
+        d = s + t - 1
+        if 1 <= d <= depth and s <= d:
+            y, x = (d - 1) * (h + gap), s * (w + gap)
+            grid[y:y + h, x:x + w] = np.asarray(img).reshape(h, w, 3)
+    return grid
+
+
+def write_strategies(out_dir, per_strategy, res, depth=STRATEGY_DEPTH):
+    """Write ``s{s}_t{t}.npy`` (linear (H, W, 3)) per strategy and ``strategies.png``
+    (:func:`strategy_grid`, sRGB at exposure 4) into ``out_dir``; returns the paths written."""
+    from pathlib import Path
+
+    from .images import write_image
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    w, h = res
+    paths = []
+    for (s, t), img in sorted(per_strategy.items()):
+        if s + t - 1 <= depth:
+            paths.append(write_image(out / f"s{s}_t{t}.npy", np.asarray(img).reshape(h, w, 3)))
+    # exposure 4: each panel holds only its weighted share of the image
+    paths.append(write_image(out / "strategies.png", strategy_grid(per_strategy, res, depth), exposure=4.0))
+    return paths
