@@ -372,10 +372,12 @@ def _bsdf_eval(scene, flips, mat, ng, wo, wi, need_pdf=True):
             continue
         sel = np.flatnonzero(mat == mi)
         a, b = wo_l[sel], wi_l[sel]
-        f[sel] = material.eval(a, b)
+        # the models' unchecked kernels: a and b are unit vectors built here
+        # (the public eval/pdf re-check them: a quarter of a BDPT batch, measured)
+        f[sel] = material._eval(a, b)
         if need_pdf:
-            pf[sel] = material.pdf(a, b)
-            pr[sel] = material.pdf(b, a)
+            pf[sel] = material._pdf(a, b)
+            pr[sel] = material._pdf(b, a)
     return f, pf, pr
 
 
