@@ -863,3 +863,21 @@ def write_strategies(out_dir, per_strategy, res, depth=STRATEGY_DEPTH):
     # exposure 4: each panel holds only its weighted share of the image
     paths.append(write_image(out / "strategies.png", strategy_grid(per_strategy, res, depth), exposure=4.0))
     return paths
+
+
+def check_scene(scene, options=None, method="light transport"):
+    """Raise ``ValueError`` naming what light tracing / BDPT cannot handle in ``scene``.
+
+    Light subpaths start on emitters: a scene needs an emitting primitive or
+    a point light; an environment map (light from infinitely far away) is
+    not sampled as a light-path origin here (pbrt samples a disk beyond the
+    scene's bounds; not implemented).
+    """
+    if scene.environment is not None:
+        raise ValueError(f"{method} cannot handle scene {scene.name!r}: it has an environment map, which "
+                         "light subpaths cannot start from (only emitting surfaces and point lights)")
+    has_emission = bool(np.any(scene.prim_emission > 0.0))
+    has_points = bool(np.any(scene.point_light_intensity > 0.0))
+    if not (has_emission or has_points):
+        raise ValueError(f"{method} needs a light: scene {scene.name!r} has no emitting surface and no "
+                         "point light")
