@@ -71,9 +71,9 @@ RR_MAX_VERTICES = 1024
 #: with s + t - 1 <= this depth (the lecture's figure: depth <= 4).
 STRATEGY_DEPTH = 4
 _INV_PI = 1.0 / math.pi
-#: Paths per chunk inside a batch: bounds the subpath arrays (about 20 float64
-#: per vertex and path: 16 384 paths x 10 vertices x 2 subpaths ~ 50 MB).
-CHUNK_PATHS = 1 << 14
+#: Paths per chunk inside a batch: bounds the subpath arrays (~110 bytes per
+#: vertex: 65 536 paths x ~5 vertices x 2 subpaths ~ 70 MB on the Cornell box).
+CHUNK_PATHS = 1 << 16
 
 
 def _dot(a, b):
@@ -253,7 +253,8 @@ class Subpath:
     Attributes
     ----------
     Every field is indexed ``[depth, paths]`` like an array ``(D, n, ...)``
-    (stored as per-depth rows, :class:`_ByDepth`; ``np.asarray`` stacks them).
+    (stored as compact per-depth rows, :class:`_ByDepth`), for paths that
+    reach that depth (``depth < length``).
 
     p, ng, beta : shape (D, n, 3)
         Position, geometric normal (0 at the pinhole and at point lights) and
@@ -293,51 +294,54 @@ class Subpath:
 
 
 class _Levels:
-    """Per-depth arrays of full width ``n``, stacked into a :class:`Subpath` at the end."""
+    """Per-depth vertex rows of the paths that reach each depth (compact), with
+    a map from path to row; :meth:`stack` wraps them as a :class:`Subpath`."""
 
     def __init__(self, n):
         self.n = n
         self.levels = []
+        self.pos = []
 
-    def add(self):
-        n = self.n
-        lev = dict(p=np.zeros((n, 3)), ng=np.zeros((n, 3)), beta=np.zeros((n, 3)), pdf_fwd=np.zeros(n),
-                   pdf_rev=np.zeros(n), delta=np.zeros(n, bool), surface=np.zeros(n, bool),
-                   mat=np.full(n, -1), prim=np.full(n, -1))
+    def add(self, idx):
+        """A new depth holding the paths ``idx`` (row ``r`` is path ``idx[r]``)."""
+        m = idx.size
+        lev = dict(p=np.zeros((m, 3)), ng=np.zeros((m, 3)), beta=np.zeros((m, 3)), pdf_fwd=np.zeros(m),
+                   pdf_rev=np.zeros(m), delta=np.zeros(m, bool), surface=np.zeros(m, bool),
+                   mat=np.full(m, -1), prim=np.full(m, -1))
+        pos = np.full(self.n, -1, dtype=np.int64)
+        pos[idx] = np.arange(m)
         self.levels.append(lev)
+        self.pos.append(pos)
         return lev
 
     def stack(self, length, point, pixel, rays):
         keys = self.levels[0].keys()
-        arrays = {k: _ByDepth([lev[k] for lev in self.levels]) for k in keys}
+        arrays = {k: _ByDepth([lev[k] for lev in self.levels], self.pos) for k in keys}
         return Subpath(length=length, point=point, pixel=pixel, rays=rays, **arrays)
 
 
 class _ByDepth:
-    """A ``(depth, n, ...)`` array kept as its per-depth rows: ``a[i, idx]`` is
-    ``row_i[idx]`` (no stacking copy: under Russian roulette the deep rows
-    are long and nearly empty; measured: stacking cost 35% of a batch)."""
+    """A ``(depth, n, ...)`` array stored as compact per-depth rows: ``a[i, idx]``
+    is the depth-``i`` data of paths ``idx`` (which must reach depth ``i``).
 
-    __slots__ = ("rows",)
+    Under Russian roulette the deep levels hold few paths: full-width levels
+    (or stacking them) cost memory and time in proportion to the longest
+    path (measured: stacking alone was 35% of a batch), compact ones in
+    proportion to the vertices that exist.
+    """
 
-    def __init__(self, rows):
+    __slots__ = ("rows", "pos")
+
+    def __init__(self, rows, pos):
         self.rows = rows
+        self.pos = pos
 
     def __getitem__(self, key):
-        if isinstance(key, tuple):
-            i, rest = key[0], key[1:]
-            return self.rows[i][rest if len(rest) > 1 else rest[0]]
-        return self.rows[key]
+        i, idx = key
+        return self.rows[i][self.pos[i][idx]]
 
     def __len__(self):
         return len(self.rows)
-
-    @property
-    def shape(self):
-        return (len(self.rows),) + self.rows[0].shape
-
-    def __array__(self, dtype=None, copy=None):
-        return np.stack(self.rows) if dtype is None else np.stack(self.rows).astype(dtype)
 
 
 def _flips(scene):
@@ -410,14 +414,14 @@ def _walk(scene, tracer, flips, lev, first, o, d, beta, pdf_dir, max_vertices, r
         p = o + d * t[:, None]
         ng = tracer.normals(prim, p)
         mat = np.take(scene.prim_material, prim)
-        cur = lev.add()
-        cur["p"][idx] = p
-        cur["ng"][idx] = ng
-        cur["beta"][idx] = beta
-        cur["surface"][idx] = True
-        cur["mat"][idx] = mat
-        cur["prim"][idx] = prim
-        cur["pdf_fwd"][idx] = np.where(prev_delta, 1.0, pdf_dir * np.abs(_dot(ng, d)) / (t * t))
+        cur = lev.add(idx)
+        cur["p"][:] = p
+        cur["ng"][:] = ng
+        cur["beta"][:] = beta
+        cur["surface"][:] = True
+        cur["mat"][:] = mat
+        cur["prim"][:] = prim
+        cur["pdf_fwd"][:] = np.where(prev_delta, 1.0, pdf_dir * np.abs(_dot(ng, d)) / (t * t))
         length[idx] = i + 1
         if i + 1 >= max_vertices:
             break
@@ -444,10 +448,10 @@ def _walk(scene, tracer, flips, lev, first, o, d, beta, pdf_dir, max_vertices, r
                     back[ok] = material.pdf(wi_s[ok], wo_l[sel][ok])
                     pdf_back[sel] = back
         wi = fr.s * wi_l[:, 0:1] + fr.n * wi_l[:, 1:2] + fr.t * wi_l[:, 2:3]
-        prev = lev.levels[i - 1]
-        cos_prev = np.where(prev["surface"][idx], np.abs(_dot(prev["ng"][idx], d)), 1.0)
-        prev["pdf_rev"][idx] = np.where(dmask, 1.0, pdf_back * cos_prev / (t * t))
-        cur["delta"][idx] = dmask
+        prev, rows = lev.levels[i - 1], lev.pos[i - 1][idx]
+        cos_prev = np.where(prev["surface"][rows], np.abs(_dot(prev["ng"][rows], d)), 1.0)
+        prev["pdf_rev"][rows] = np.where(dmask, 1.0, pdf_back * cos_prev / (t * t))
+        cur["delta"][:] = dmask
         beta = beta * weight
         alive = (beta.max(axis=1) > 0.0) & (pdf > 0.0)
         if roulette and i >= RR_START_DEPTH:
@@ -472,7 +476,7 @@ def camera_subpath(scene, tracer, res, pixel, offsets, max_vertices, rng, roulet
     n = pixel.shape[0]
     cam = scene.camera
     lev = _Levels(n)
-    z0 = lev.add()
+    z0 = lev.add(np.arange(n))
     z0["p"][:] = cam.position
     z0["beta"][:] = 1.0
     z0["pdf_fwd"][:] = 1.0
@@ -488,7 +492,7 @@ def light_subpath(scene, tracer, emitters: Emitters, n, max_vertices, rng, roule
     """Light subpaths ``y_0 .. y_{s-1}`` from :meth:`Emitters.sample_le`."""
     lev = _Levels(n)
     s = emitters.sample_le(rng.random((n, 5)))
-    y0 = lev.add()
+    y0 = lev.add(np.arange(n))
     y0["p"][:] = s["p"]
     y0["ng"][:] = s["n"]
     y0["surface"][:] = s["point"] < 0
@@ -642,11 +646,12 @@ def _connect_emitter(ctx, C, t):
 def _connect_inner(ctx, L, C, s, t):
     """Strategy (s >= 1, t >= 2): ``y_{s-1}`` joined to ``z_{t-1}`` by a shadow ray."""
     scene, em = ctx.scene, ctx.em
-    ok = (L.length >= s) & (C.length >= t)
-    ok &= ~ctx.delta_mat[C.mat[t - 1]] & (C.mat[t - 1] >= 0)
+    idx = np.flatnonzero((L.length >= s) & (C.length >= t))
+    mat_t = C.mat[t - 1, idx]
+    ok = ~ctx.delta_mat[mat_t] & (mat_t >= 0)
     if s >= 2:
-        ok &= ~ctx.delta_mat[L.mat[s - 1]]
-    idx = np.flatnonzero(ok)
+        ok &= ~ctx.delta_mat[L.mat[s - 1, idx]]
+    idx = idx[ok]
     if idx.size == 0:
         return idx, np.zeros((0, 3)), np.zeros(0)
     q, k = s - 1, t - 1
