@@ -271,3 +271,99 @@ def test_light_transport_rejects_scenes_it_cannot_render():
         check_scene(dark, method="light")
     check_scene(load_scene("cornell-point"))
     check_scene(load_scene("furnace"))
+
+
+# ---------------------------------------------------------------------------
+# The MIS weights of all strategies that can make one path sum to 1
+
+def _chain(scene, tracer, lt, points, prims, first_pdf_dir, first_surface, first_normal):
+    """Subpath arrays (pdf_fwd, pdf_rev, ...) of the vertex chain ``points``
+    (m, n, 3), computed from the geometry the way a random walk records them."""
+    flips = lt._flips(scene)
+    m, n = points.shape[:2]
+    lev = lt._Levels(n)
+    rows = []
+    for i in range(m):
+        row = lev.add(np.arange(n))
+        row["p"][:] = points[i]
+        row["beta"][:] = 1.0
+        row["prim"][:] = prims[i]
+        if i == 0:
+            row["surface"][:] = first_surface
+            row["ng"][:] = first_normal
+        else:
+            row["surface"][:] = True
+            row["ng"][:] = tracer.normals(prims[i], points[i])
+            row["mat"][:] = scene.prim_material[prims[i]]
+        rows.append(row)
+    rows[0]["pdf_fwd"][:] = 1.0
+    for i in range(1, m):
+        w, r = lt._unit(points[i] - points[i - 1])
+        cos_i = np.abs(np.einsum("ij,ij->i", rows[i]["ng"], w))
+        if i == 1:
+            pdf_dir = first_pdf_dir(w)
+        else:
+            wo, _ = lt._unit(points[i - 2] - points[i - 1])
+            _, pdf_dir, _ = lt._bsdf_eval(scene, flips, rows[i - 1]["mat"], rows[i - 1]["ng"], wo, w)
+        rows[i]["pdf_fwd"][:] = pdf_dir * cos_i / r ** 2
+        if i + 1 < m:       # vertex i scatters towards i + 1: the reverse density of i - 1
+            wo, _ = lt._unit(points[i - 1] - points[i])
+            wi, _ = lt._unit(points[i + 1] - points[i])
+            _, _, back = lt._bsdf_eval(scene, flips, rows[i]["mat"], rows[i]["ng"], wo, wi)
+            cos_prev = np.where(rows[i - 1]["surface"], np.abs(np.einsum("ij,ij->i", rows[i - 1]["ng"], -wo)), 1.0)
+            rows[i - 1]["pdf_rev"][:] = back * cos_prev / r ** 2
+    return lev
+
+
+@pytest.mark.parametrize("name", ["cornell", "cornell-point"])
+@pytest.mark.parametrize("heuristic,mis", [("power", True), ("balance", True), ("power", False)])
+def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis):
+    """Veach 1997, eq. 10.6: for every path, the weights of the strategies that
+    can produce it sum to 1. Paths of 4 segments are made by joining a camera
+    subpath to a light vertex; each split s = 0..4 of the same vertices is
+    rebuilt as a light and a camera subpath and weighted by the BDPT code."""
+    import mcvar.lighttransport as lt
+    from mcvar.tracer import Tracer
+
+    scene = load_scene(name)
+    tracer = Tracer(scene)
+    em = lt.Emitters(scene, tracer)
+    res = (8, 8)
+    rng = np.random.default_rng(1)
+    n0 = 2000
+    C = lt.camera_subpath(scene, tracer, res, rng.integers(0, 64, n0), rng.random((n0, 2)), 4, rng)
+    L = lt.light_subpath(scene, tracer, em, n0, 1, rng)
+    ctx = lt._Context(scene, tracer, em, res, heuristic, mis)
+    idx, value, _ = lt._connect_inner(ctx, L, C, 1, 4)      # full paths y0, z3, z2, z1, z0
+    assert idx.size > 50
+    k = 4
+    pts = np.stack([L.p[0, idx], C.p[3, idx], C.p[2, idx], C.p[1, idx], C.p[0, idx]])
+    prims = np.stack([L.prim[0, idx], C.prim[3, idx], C.prim[2, idx], C.prim[1, idx], np.full(idx.size, -1)])
+    point = L.point[idx]
+    n = idx.size
+    light_n = L.ng[0, idx]
+    total = np.zeros(n)
+    counted = np.zeros(n, dtype=int)
+    for s in range(0, k + 1):
+        t = k + 1 - s
+        lsub = csub = None
+        if s:
+            lev = _chain(scene, tracer, lt, pts[:s], prims[:s],
+                         lambda w: em.light_pdf_dir(point, prims[0], pts[0], w), point < 0, light_n)
+            lev.levels[0]["pdf_fwd"][:] = L.pdf_fwd[0, idx]           # the emitter's choice x area density
+            lsub = lev.stack(np.full(n, s), point, np.full(n, -1), 0)
+        cam_pts, cam_prims = pts[::-1][:t], prims[::-1][:t]
+        lev = _chain(scene, tracer, lt, cam_pts, cam_prims, lambda w: scene.camera.pdf_We(w, res)[1],
+                     False, np.zeros((n, 3)))
+        pix = scene.camera.pixel_index(scene.camera.project(pts[k - 1], res)[0], res)
+        csub = lev.stack(np.full(n, t), np.full(n, -1), pix, 0)
+        if s == 0:
+            ic, _, w = lt._connect_emitter(ctx, csub, t)
+        elif t == 1:
+            ic, _, _, w = lt._connect_camera(ctx, lsub, s)
+        else:
+            ic, _, w = lt._connect_inner(ctx, lsub, csub, s, t)
+        total[ic] += w
+        counted[ic] += 1
+    assert np.all(counted >= (3 if name == "cornell-point" else 4))
+    np.testing.assert_allclose(total, 1.0, rtol=1e-9)
