@@ -38,7 +38,7 @@ class Emitters:
     Attributes
     ----------
     n_emitters : int
-        Area lights plus one for an environment.
+        Area lights, point lights, plus one for an environment.
     select_pdf : float
         ``1 / n_emitters`` (uniform choice), 0 without emitters.
     single_quad : bool
@@ -49,8 +49,9 @@ class Emitters:
     def __init__(self, scene):
         self.scene = scene
         self.n_lights = scene.n_lights
+        self.n_points = scene.n_point_lights
         self.env = scene.environment
-        self.n_emitters = self.n_lights + (1 if self.env is not None else 0)
+        self.n_emitters = self.n_lights + self.n_points + (1 if self.env is not None else 0)
         self.select_pdf = 1.0 / self.n_emitters if self.n_emitters else 0.0
         self.light_area = scene.light_area
         self.light_normal = scene.light_normal
@@ -59,13 +60,14 @@ class Emitters:
         self.normal_soa = np.ascontiguousarray(self.light_normal.T)          # (3, L)
         self.radiance_soa = np.ascontiguousarray(scene.light_radiance.T)     # (3, L)
         self.pdf_area = self.select_pdf / self.light_area if self.n_lights else np.zeros(0)
-        self.single_quad = self.n_lights == 1 and self.env is None
+        self.single_quad = self.n_lights == 1 and self.env is None and self.n_points == 0
 
     # -- next-event estimation -------------------------------------------------
 
     def choose(self, u_sel, m: int) -> np.ndarray:
         """Emitter index of ``m`` samples from ``u_sel`` in [0, 1] (None with one
-        emitter): lights ``0 .. L-1``, then ``L`` = the environment."""
+        emitter): lights ``0 .. L-1``, point lights ``L .. L+P-1``, then
+        ``L + P`` = the environment."""
         n_em = self.n_emitters
         if n_em <= 1:
             return np.zeros(m, dtype=np.int64)
@@ -96,7 +98,16 @@ class Emitters:
             Solid-angle density of ``w`` including the emitter choice; 0
             where the sample cannot contribute (back side, edge-on).
         light : ndarray of int, shape (m,)
-            Light index, -1 for the environment (for shadow keys).
+            Light index, -1 for the environment (for shadow keys), -2 for a
+            point light.
+
+        Notes
+        -----
+        A point light (a Dirac delta in solid angle, issue 11) returns ``le
+        = I / r^2`` and ``pdf`` = its selection probability, so that ``f le
+        cos / pdf`` is the estimate; BSDF sampling cannot hit it, so its MIS
+        weight is 1 (the caller passes a BSDF density of 0 for ``light ==
+        -2``).
         """
         m = p.shape[1]
         if self.single_quad:
@@ -111,13 +122,24 @@ class Emitters:
         if self.n_lights and np.any(on_light):
             sel = np.flatnonzero(on_light)
             w[:, sel], dist[sel], le[:, sel], pdf[sel] = self._area(p[:, sel], u[:, sel], k[sel])
-        if self.env is not None and not np.all(on_light):
-            sel = np.flatnonzero(~on_light)
+        on_point = (k >= self.n_lights) & (k < self.n_lights + self.n_points)
+        if self.n_points and np.any(on_point):
+            sel = np.flatnonzero(on_point)
+            j = k[sel] - self.n_lights
+            v = np.take(self.scene.point_light_position, j, axis=0).T - p[:, sel]
+            d2 = _dot(v, v)
+            r = np.sqrt(d2)
+            w[:, sel] = v / np.maximum(r, 1e-300)
+            dist[sel] = r
+            le[:, sel] = np.take(self.scene.point_light_intensity, j, axis=0).T / np.maximum(d2, 1e-300)
+            pdf[sel] = self.select_pdf
+        if self.env is not None and not np.all(on_light | on_point):
+            sel = np.flatnonzero(~(on_light | on_point))
             w_env, pdf_env = self.env.sample(u[:, sel].T)
             w[:, sel] = w_env.T
             le[:, sel] = self.env.radiance(w_env).T
             pdf[sel] = self.select_pdf * pdf_env
-        return w, dist, le, pdf, np.where(on_light, k, -1)
+        return w, dist, le, pdf, np.where(on_light, k, np.where(on_point, -2, -1))
 
     def _area(self, p, u, li):
         """Uniform points on lights ``li`` (None: the single light) seen from ``p``, SoA."""
