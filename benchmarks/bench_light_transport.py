@@ -34,17 +34,11 @@ SCENES = ("cornell", "cornell-spheres", "cornell-point")
 
 
 def _render(scene, method, spp, res, rng):
-    """One render and its wall time: through the integrator registry when the
-    method is registered there, else the staging driver of mcvar.lighttransport."""
-    from mcvar import integrators
+    """One render (one batch) and its wall time."""
+    from mcvar.integrators import render
 
     t0 = time.perf_counter()
-    if method in integrators.INTEGRATORS:
-        image = integrators.render(scene, integrator=method, spp=spp, res=res, rng=rng).image
-    else:
-        from mcvar.lighttransport import render_staging
-
-        image = render_staging(scene, method, spp=spp, res=res, rng=rng, batches=1)[0]
+    image = render(scene, integrator=method, spp=spp, res=res, rng=rng).image
     return image, time.perf_counter() - t0
 
 

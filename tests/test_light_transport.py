@@ -74,12 +74,10 @@ def test_path_bsdf_renders_a_point_light_black_and_path_does_not():
 # light and bdpt against path: 8 x 8 pixel blocks, replicates, 5 SE (Sidak)
 
 def _lt_render(scene, integrator, *, spp, res, rng, max_depth=None, **options):
-    """(image, standard error) of one light-transport render with its SE from batches."""
-    from mcvar.lighttransport import render_staging
-
-    image, se, _, _ = render_staging(scene, integrator, spp=spp, res=res, rng=rng, max_depth=max_depth,
-                                     batches=8, **options)
-    return image, se
+    """(image, standard error) of a splatting render: 8 independent batches give the SE."""
+    r = render(scene, integrator=integrator, spp=spp, res=res, rng=rng, max_depth=max_depth,
+               batch_spp=spp // 8, **options)
+    return r.image, r.standard_error
 
 
 def _path_render(scene, *, spp, res, rng, max_depth=None):
@@ -185,11 +183,11 @@ def test_cornell_point_path_light_and_bdpt_agree():
 
 
 def test_bdpt_strategies_sum_to_the_image_exactly():
-    from mcvar.lighttransport import render_staging
+    from mcvar.integrators.bdpt import strategies_from_extra
 
     scene = load_scene("cornell-spheres")
-    image, _, strategies, _ = render_staging(scene, "bdpt", spp=8, res=(16, 16), rng=3, max_depth=4,
-                                             batches=2, strategies=True)
+    r = render(scene, integrator="bdpt", spp=8, res=(16, 16), rng=3, max_depth=4, batch_spp=4, strategies=True)
+    image, strategies = r.image, strategies_from_extra(r.extra, (16, 16))
     # every (s, t) of depth s + t - 1 <= 4: s = 0..4 (t >= 2 for s = 0), none of depth 0
     assert set(strategies) == {(s, t) for s in range(5) for t in range(1, 6)
                                if 2 <= s + t <= 5 and not (s == 0 and t == 1)}
@@ -204,14 +202,12 @@ def test_bdpt_without_mis_is_unbiased_but_noisier():
     per-pixel variance (F test at 5 sigma), ratio measured (about 20 at depth 3)."""
     from scipy.stats import f as f_dist
 
-    from mcvar.lighttransport import render_staging
-
     scene = load_scene("cornell")
     res, b = (16, 16), 8
     runs = {}
     for mis in (True, False):
-        imgs = np.array([render_staging(scene, "bdpt", spp=8, res=res, rng=100 * mis + k, max_depth=3,
-                                        mis=mis, batches=1)[0] for k in range(b)])
+        imgs = np.array([render(scene, integrator="bdpt", spp=8, res=res, rng=100 * mis + k, max_depth=3,
+                                mis=mis).image for k in range(b)])
         runs[mis] = imgs
     means = {k: v.mean(axis=(1, 2, 3)) for k, v in runs.items()}     # per replicate image mean
     diff = means[True].mean() - means[False].mean()
@@ -262,15 +258,15 @@ def test_bdpt_and_light_on_a_mixed_delta_plastic_room():
 
 
 def test_light_transport_rejects_scenes_it_cannot_render():
-    from mcvar.lighttransport import check_scene
-
-    with pytest.raises(ValueError, match="environment map"):
-        check_scene(load_scene("quad-environment"), method="bdpt")
-    dark = load_scene("furnace", emission=0.0)
-    with pytest.raises(ValueError, match="no emitting surface and no point light"):
-        check_scene(dark, method="light")
-    check_scene(load_scene("cornell-point"))
-    check_scene(load_scene("furnace"))
+    for name in ("light", "bdpt"):
+        with pytest.raises(ValueError, match=f"{name} cannot handle scene 'quad-environment'.*environment map"):
+            render(load_scene("quad-environment"), integrator=name, spp=1, res=4)
+        with pytest.raises(ValueError, match=f"{name} needs a light.*no emitting surface and no point light"):
+            render(load_scene("furnace", emission=0.0), integrator=name, spp=1, res=4)
+        with pytest.raises(ValueError, match="max_depth"):
+            render(load_scene("cornell"), integrator=name, spp=1, res=4, max_depth=0)
+    with pytest.raises(ValueError, match="mis"):
+        render(load_scene("cornell"), integrator="light", spp=1, res=4, mis=False)
 
 
 # ---------------------------------------------------------------------------
@@ -322,19 +318,20 @@ def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis
     can produce it sum to 1. Paths of 4 segments are made by joining a camera
     subpath to a light vertex; each split s = 0..4 of the same vertices is
     rebuilt as a light and a camera subpath and weighted by the BDPT code."""
-    import mcvar.lighttransport as lt
+    from mcvar.integrators import bdpt, light as lt
+    from mcvar.integrators.emitters import LightOrigins
     from mcvar.tracer import Tracer
 
     scene = load_scene(name)
     tracer = Tracer(scene)
-    em = lt.Emitters(scene, tracer)
+    em = LightOrigins(scene)
     res = (8, 8)
     rng = np.random.default_rng(1)
     n0 = 2000
     C = lt.camera_subpath(scene, tracer, res, rng.integers(0, 64, n0), rng.random((n0, 2)), 4, rng)
     L = lt.light_subpath(scene, tracer, em, n0, 1, rng)
     ctx = lt._Context(scene, tracer, em, res, heuristic, mis)
-    idx, value, _ = lt._connect_inner(ctx, L, C, 1, 4)      # full paths y0, z3, z2, z1, z0
+    idx, value, _ = bdpt._connect_inner(ctx, L, C, 1, 4)    # full paths y0, z3, z2, z1, z0
     assert idx.size > 50
     k = 4
     pts = np.stack([L.p[0, idx], C.p[3, idx], C.p[2, idx], C.p[1, idx], C.p[0, idx]])
@@ -358,11 +355,11 @@ def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis
         pix = scene.camera.pixel_index(scene.camera.project(pts[k - 1], res)[0], res)
         csub = lev.stack(np.full(n, t), np.full(n, -1), pix, 0)
         if s == 0:
-            ic, _, w = lt._connect_emitter(ctx, csub, t)
+            ic, _, w = bdpt._connect_emitter(ctx, csub, t)
         elif t == 1:
-            ic, _, _, w = lt._connect_camera(ctx, lsub, s)
+            ic, _, _, w = lt._connect_camera(ctx, lsub, s, bdpt._mis_weight)
         else:
-            ic, _, w = lt._connect_inner(ctx, lsub, csub, s, t)
+            ic, _, w = bdpt._connect_inner(ctx, lsub, csub, s, t)
         total[ic] += w
         counted[ic] += 1
     assert np.all(counted >= (3 if name == "cornell-point" else 4))
