@@ -364,3 +364,34 @@ def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis
         counted[ic] += 1
     assert np.all(counted >= (3 if name == "cornell-point" else 4))
     np.testing.assert_allclose(total, 1.0, rtol=1e-9)
+
+
+# ---------------------------------------------------------------------------
+# mcvar render --strategies
+
+def test_cli_strategies_writes_the_grid_and_images_that_sum_to_the_render(tmp_path, capsys):
+    from mcvar.cli import main
+
+    out = tmp_path / "img.npy"
+    st = tmp_path / "st"
+    assert main(["render", "cornell", "--integrator", "bdpt", "--max-depth", "4", "--spp", "4", "--res", "12",
+                 "--strategies", str(st), "--out", str(out), "--quiet"]) == 0
+    files = sorted(p.name for p in st.glob("s*_t*.npy"))
+    assert len(files) == 14 and (st / "strategies.png").exists()      # depth 1..4: 2 + 3 + 4 + 5 strategies
+    total = sum(np.load(st / f) for f in files)
+    np.testing.assert_allclose(total, np.load(out), rtol=1e-5, atol=1e-6)     # .npy files are float32
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["cornell", "--integrator", "path"], "needs --integrator bdpt"),
+    (["cornell", "--integrator", "bdpt", "--max-depth", "0"], "max_depth must be >= 1"),
+    (["quad-environment", "--integrator", "bdpt"], "environment map"),
+])
+def test_cli_strategies_bad_input(tmp_path, capsys, argv, message):
+    from mcvar.cli import main
+
+    code = main(["render", *argv, "--spp", "1", "--res", "4", "--strategies", str(tmp_path / "st"),
+                 "--out", str(tmp_path / "x.npy"), "--quiet"])
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "st").exists()
