@@ -422,6 +422,8 @@ def pdf_le(scene, light, points, directions):
     directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     point = np.where(light < 0, -1 - light, -1)
     prim = np.maximum(light, 0)
-    pdf_pos = np.where(light < 0, np.take(origins.pmf, origins.prims.size + np.maximum(point, 0)),
-                       origins.pdf_pos(prim))
+    pdf_pos = origins.pdf_pos(prim)
+    is_point = light < 0
+    if np.any(is_point):
+        pdf_pos[is_point] = np.take(origins.pmf, origins.prims.size + point[is_point])
     return pdf_pos, origins.light_pdf_dir(point, prim, points, directions)
