@@ -471,3 +471,41 @@ def test_padded_pairs_are_randomized_independently():
         x = u[:, :, 0::2].reshape(-1, 4)
         r = np.corrcoef(x.T)[np.triu_indices(4, 1)]
         assert np.all(np.abs(r) < Z / np.sqrt(x.shape[0])), (name, r)
+
+
+# -- executors and memory --------------------------------------------------------
+
+def test_any_executor_renders_the_same_image(cornell):
+    # the batches are picklable descriptions and results are added in batch
+    # order: a Dask cluster, a kept WorkerPool and one process give one image
+    distributed = pytest.importorskip("dask.distributed")
+    from mcvar.integrators import WorkerPool
+
+    kw = dict(spp=8, res=8, rng=SEED + 140, batch_spp=2, sampler="sobol")
+    a = render(cornell, **kw)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        b = render(cornell, executor=client.get_executor(), **kw)
+    with WorkerPool(2) as pool:
+        c = render(cornell, executor=pool, **kw)
+        d = render(cornell, executor=pool, **kw)       # the pool outlives a render
+    for other in (b, c, d):
+        np.testing.assert_array_equal(a.image, other.image)
+        np.testing.assert_array_equal(a.variance, other.variance)
+    with pytest.raises(TypeError, match="executor must have a submit"):
+        render(cornell, executor=4)
+
+
+def test_a_render_too_big_for_memory_is_refused_before_any_work(cornell):
+    from mcvar.integrators import MAX_RENDER_BYTES, estimate_render_bytes
+
+    calls = []
+    with pytest.raises(ValueError, match=r"needs about .* GiB.*max_memory"):
+        render(cornell, res=10 ** 6, spp=1, progress=lambda d, t: calls.append(d))
+    assert calls == []
+    # the estimate is at least the film's four float64 (n_pix, 3) arrays
+    assert estimate_render_bytes(10 ** 12, 10 ** 12, 2) >= 96 * 10 ** 12 > MAX_RENDER_BYTES
+    # the limit is documented and overridable, both ways
+    with pytest.raises(ValueError, match="max_memory"):
+        render(cornell, res=8, spp=1, max_memory=1000)
+    assert render(cornell, res=8, spp=1, rng=1, max_memory=MAX_RENDER_BYTES * 2).spp == 1
