@@ -522,3 +522,41 @@ def test_sampler_dim_says_how_many_stream_columns_the_sampler_feeds(cornell):
     assert not np.array_equal(a.image, render(cornell, spp=16, res=8, rng=SEED + 150, sampler="sobol").image)
     with pytest.raises(ValueError, match="sampler_dim must be >= 1"):
         render(cornell, sampler_dim=0)
+
+
+# -- the film ----------------------------------------------------------------------
+
+def test_splat_adds_repeated_pixels_and_rejects_pixels_outside():
+    from mcvar.integrators import splat
+
+    acc = np.zeros((5, 3))
+    splat(acc, [4, 0, 4, 4], np.arange(12.0).reshape(4, 3))
+    np.testing.assert_array_equal(acc[4], [0 + 6 + 9, 1 + 7 + 10, 2 + 8 + 11])
+    np.testing.assert_array_equal(acc[0], [3, 4, 5])
+    assert not acc[1:4].any()
+    with pytest.raises(ValueError, match="pixel_index must lie in"):
+        splat(acc, [5], np.ones((1, 3)))
+
+
+def test_film_variance_from_independent_batches_is_the_per_sample_variance():
+    # Splat / chain batches: batch b's image I_b has variance sigma^2 / n_b; the
+    # film's s^2 = sum n_b (I_b - I)^2 / (B - 1) is unbiased for sigma^2 even
+    # for unequal n_b. Over P pixels-channels the mean of s^2 / sigma^2 is a
+    # chi^2_{B-1} / (B - 1) average: its SE is sqrt(2 / ((B - 1) P)).
+    from mcvar.integrators import BatchResult, Film
+
+    rng = np.random.default_rng(5150)
+    n_pix, sigma, mu = 4000, 0.7, 2.0
+    sizes = [4, 4, 4, 2, 1]
+    film = Film(n_pix, per_sample=False)
+    for n_b in sizes:
+        image = mu + sigma / np.sqrt(n_b) * rng.standard_normal((n_pix, 3))
+        film.add(BatchResult(sum=image * n_b, sum_sq=None, rays=0), n_b)
+    var = film.variance((n_pix, 1))
+    ratio = var.mean() / sigma ** 2
+    se = np.sqrt(2.0 / ((len(sizes) - 1) * 3 * n_pix))
+    assert abs(ratio - 1.0) < Z * se, (ratio, se)
+    np.testing.assert_allclose(film.image((n_pix, 1)).mean(), mu, atol=Z * sigma / np.sqrt(3 * n_pix * sum(sizes)))
+    one = Film(3, per_sample=False)
+    one.add(BatchResult(np.ones((3, 3)), None, 0), 2)
+    assert one.variance((3, 1)) is None               # one batch: no spread to measure
