@@ -274,8 +274,10 @@ def test_light_transport_rejects_scenes_it_cannot_render():
 
 def _chain(scene, tracer, lt, points, prims, first_pdf_dir, first_surface, first_normal):
     """Subpath arrays (pdf_fwd, pdf_rev, ...) of the vertex chain ``points``
-    (m, n, 3), computed from the geometry the way a random walk records them."""
+    (m, n, 3), computed from the geometry the way a random walk records them
+    (a vertex of a pure-delta material is delta; the densities next to it are 1)."""
     flips = lt._flips(scene)
+    delta_mat = np.array([bool(mat.is_delta) for mat in scene.materials] + [False])
     m, n = points.shape[:2]
     lev = lt._Levels(n)
     rows = []
@@ -291,6 +293,7 @@ def _chain(scene, tracer, lt, points, prims, first_pdf_dir, first_surface, first
             row["surface"][:] = True
             row["ng"][:] = tracer.normals(prims[i], points[i])
             row["mat"][:] = scene.prim_material[prims[i]]
+            row["delta"][:] = delta_mat[row["mat"]]
         rows.append(row)
     rows[0]["pdf_fwd"][:] = 1.0
     for i in range(1, m):
@@ -301,23 +304,26 @@ def _chain(scene, tracer, lt, points, prims, first_pdf_dir, first_surface, first
         else:
             wo, _ = lt._unit(points[i - 2] - points[i - 1])
             _, pdf_dir, _ = lt._bsdf_eval(scene, flips, rows[i - 1]["mat"], rows[i - 1]["ng"], wo, w)
-        rows[i]["pdf_fwd"][:] = pdf_dir * cos_i / r ** 2
+        rows[i]["pdf_fwd"][:] = np.where(rows[i - 1]["delta"], 1.0, pdf_dir * cos_i / r ** 2)
         if i + 1 < m:       # vertex i scatters towards i + 1: the reverse density of i - 1
             wo, _ = lt._unit(points[i - 1] - points[i])
             wi, _ = lt._unit(points[i + 1] - points[i])
             _, _, back = lt._bsdf_eval(scene, flips, rows[i]["mat"], rows[i]["ng"], wo, wi)
             cos_prev = np.where(rows[i - 1]["surface"], np.abs(np.einsum("ij,ij->i", rows[i - 1]["ng"], -wo)), 1.0)
-            rows[i - 1]["pdf_rev"][:] = back * cos_prev / r ** 2
+            rows[i - 1]["pdf_rev"][:] = np.where(rows[i]["delta"], 1.0, back * cos_prev / r ** 2)
     return lev
 
 
-@pytest.mark.parametrize("name", ["cornell", "cornell-point"])
+@pytest.mark.parametrize("name", ["cornell", "cornell-point", "cornell-spheres"])
 @pytest.mark.parametrize("heuristic,mis", [("power", True), ("balance", True), ("power", False)])
 def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis):
     """Veach 1997, eq. 10.6: for every path, the weights of the strategies that
     can produce it sum to 1. Paths of 4 segments are made by joining a camera
     subpath to a light vertex; each split s = 0..4 of the same vertices is
-    rebuilt as a light and a camera subpath and weighted by the BDPT code."""
+    rebuilt as a light and a camera subpath and weighted by the BDPT code.
+    On cornell-spheres the paths see the mirror first (camera -> mirror ->
+    wall -> wall -> light): the strategies that would connect at the mirror
+    (s = 3, 4) must be left out and the other three still sum to 1."""
     from mcvar.integrators import bdpt, light as lt
     from mcvar.integrators.emitters import LightOrigins
     from mcvar.tracer import Tracer
@@ -327,11 +333,16 @@ def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis
     em = LightOrigins(scene)
     res = (8, 8)
     rng = np.random.default_rng(1)
-    n0 = 2000
+    n0 = 2000 if name != "cornell-spheres" else 40000
     C = lt.camera_subpath(scene, tracer, res, rng.integers(0, 64, n0), rng.random((n0, 2)), 4, rng)
     L = lt.light_subpath(scene, tracer, em, n0, 1, rng)
     ctx = lt._Context(scene, tracer, em, res, heuristic, mis)
     idx, value, _ = bdpt._connect_inner(ctx, L, C, 1, 4)    # full paths y0, z3, z2, z1, z0
+    if name == "cornell-spheres":      # keep camera -> mirror -> diffuse -> diffuse -> light
+        mirror = scene.material_names.index("mirror")
+        delta_mat = np.array([bool(mat.is_delta) for mat in scene.materials])
+        keep = (C.mat[1, idx] == mirror) & ~delta_mat[C.mat[2, idx]] & ~delta_mat[C.mat[3, idx]]
+        idx = idx[keep]
     assert idx.size > 50
     k = 4
     pts = np.stack([L.p[0, idx], C.p[3, idx], C.p[2, idx], C.p[1, idx], C.p[0, idx]])
@@ -362,7 +373,8 @@ def test_mis_weights_of_all_strategies_of_a_path_sum_to_one(name, heuristic, mis
             ic, _, w = bdpt._connect_inner(ctx, lsub, csub, s, t)
         total[ic] += w
         counted[ic] += 1
-    assert np.all(counted >= (3 if name == "cornell-point" else 4))
+    expected = {"cornell": 5, "cornell-point": 4, "cornell-spheres": 3}[name]
+    assert np.all(counted == expected), np.unique(counted)
     np.testing.assert_allclose(total, 1.0, rtol=1e-9)
 
 
