@@ -21,7 +21,7 @@ import tracemalloc
 
 import numpy as np
 
-from mcvar.integrators import PATHS_PER_BATCH, render
+from mcvar.integrators import PATHS_PER_BATCH, WorkerPool, render
 from mcvar.metrics import mse
 from mcvar.scene import load_scene
 
@@ -53,8 +53,11 @@ def main(quick: bool = False):
                     continue
                 # the same batches for 1 and 2 workers (same image); at least two of them
                 bs = max(1, min(spp // 2, PATHS_PER_BATCH // (res * res)))
-                best, med, rp = _rate(scene, integrator, res, spp, repeats, precision=precision,
-                                      workers=workers, batch_spp=bs)
+                # a kept WorkerPool: warm processes over the repeats (workers=2 alone
+                # would start a fresh pool for every render)
+                with WorkerPool(workers) as pool:
+                    best, med, rp = _rate(scene, integrator, res, spp, repeats, precision=precision,
+                                          executor=pool if workers > 1 else None, batch_spp=bs)
                 print(f"{integrator:>10} {res:>5} {spp:>4} {precision:>8} {workers:>7} "
                       f"{best / 1e6:>10.3f} M {med / 1e6:>6.3f} M {best * rp / 1e6:>9.3f} M {rp:>9.2f}")
     # the general loop (material sort, BSDF method calls) against the trusted

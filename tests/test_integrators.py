@@ -472,3 +472,92 @@ def test_padded_pairs_are_randomized_independently():
         x = u[:, :, 0::2].reshape(-1, 4)
         r = np.corrcoef(x.T)[np.triu_indices(4, 1)]
         assert np.all(np.abs(r) < Z / np.sqrt(x.shape[0])), (name, r)
+
+
+# -- executors and memory --------------------------------------------------------
+
+def test_any_executor_renders_the_same_image(cornell):
+    # the batches are picklable descriptions and results are added in batch
+    # order: a Dask cluster, a kept WorkerPool and one process give one image
+    distributed = pytest.importorskip("dask.distributed")
+    from mcvar.integrators import WorkerPool
+
+    kw = dict(spp=8, res=8, rng=SEED + 140, batch_spp=2, sampler="sobol")
+    a = render(cornell, **kw)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        b = render(cornell, executor=client.get_executor(), **kw)
+    with WorkerPool(2) as pool:
+        c = render(cornell, executor=pool, **kw)
+        d = render(cornell, executor=pool, **kw)       # the pool outlives a render
+    for other in (b, c, d):
+        np.testing.assert_array_equal(a.image, other.image)
+        np.testing.assert_array_equal(a.variance, other.variance)
+    with pytest.raises(TypeError, match="executor must have a submit"):
+        render(cornell, executor=4)
+
+
+def test_a_render_too_big_for_memory_is_refused_before_any_work(cornell):
+    from mcvar.integrators import MAX_RENDER_BYTES, estimate_render_bytes
+
+    calls = []
+    with pytest.raises(ValueError, match=r"needs about .* GiB.*max_memory"):
+        render(cornell, res=10 ** 6, spp=1, progress=lambda d, t: calls.append(d))
+    assert calls == []
+    # the estimate is at least the film's four float64 (n_pix, 3) arrays
+    assert estimate_render_bytes(10 ** 12, 10 ** 12, 2) >= 96 * 10 ** 12 > MAX_RENDER_BYTES
+    # the limit is documented and overridable, both ways
+    with pytest.raises(ValueError, match="max_memory"):
+        render(cornell, res=8, spp=1, max_memory=1000)
+    assert render(cornell, res=8, spp=1, rng=1, max_memory=MAX_RENDER_BYTES * 2).spp == 1
+
+
+def test_sampler_dim_says_how_many_stream_columns_the_sampler_feeds(cornell):
+    # sampler_dim=2 stratifies only the pixel position; the default also feeds
+    # the vertices. Both are unbiased: image means agree within Z standard errors
+    # (per-sample variances of iid-or-better pixels bound the standard error).
+    a = render(cornell, spp=16, res=8, rng=SEED + 150, sampler="sobol", sampler_dim=2)
+    b = render(cornell, spp=16, res=8, rng=SEED + 151, sampler="sobol")
+    (ma, sa), (mb, sb) = _mean_and_se(a), _mean_and_se(b)
+    assert np.all(np.abs(ma - mb) < Z * np.hypot(sa, sb)), (ma, mb)
+    assert not np.array_equal(a.image, render(cornell, spp=16, res=8, rng=SEED + 150, sampler="sobol").image)
+    with pytest.raises(ValueError, match="sampler_dim must be >= 1"):
+        render(cornell, sampler_dim=0)
+
+
+# -- the film ----------------------------------------------------------------------
+
+def test_splat_adds_repeated_pixels_and_rejects_pixels_outside():
+    from mcvar.integrators import splat
+
+    acc = np.zeros((5, 3))
+    splat(acc, [4, 0, 4, 4], np.arange(12.0).reshape(4, 3))
+    np.testing.assert_array_equal(acc[4], [0 + 6 + 9, 1 + 7 + 10, 2 + 8 + 11])
+    np.testing.assert_array_equal(acc[0], [3, 4, 5])
+    assert not acc[1:4].any()
+    with pytest.raises(ValueError, match="pixel_index must lie in"):
+        splat(acc, [5], np.ones((1, 3)))
+
+
+def test_film_variance_from_independent_batches_is_the_per_sample_variance():
+    # Splat / chain batches: batch b's image I_b has variance sigma^2 / n_b; the
+    # film's s^2 = sum n_b (I_b - I)^2 / (B - 1) is unbiased for sigma^2 even
+    # for unequal n_b. Over P pixels-channels the mean of s^2 / sigma^2 is a
+    # chi^2_{B-1} / (B - 1) average: its SE is sqrt(2 / ((B - 1) P)).
+    from mcvar.integrators import BatchResult, Film
+
+    rng = np.random.default_rng(5150)
+    n_pix, sigma, mu = 4000, 0.7, 2.0
+    sizes = [4, 4, 4, 2, 1]
+    film = Film(n_pix, per_sample=False)
+    for n_b in sizes:
+        image = mu + sigma / np.sqrt(n_b) * rng.standard_normal((n_pix, 3))
+        film.add(BatchResult(sum=image * n_b, sum_sq=None, rays=0), n_b)
+    var = film.variance((n_pix, 1))
+    ratio = var.mean() / sigma ** 2
+    se = np.sqrt(2.0 / ((len(sizes) - 1) * 3 * n_pix))
+    assert abs(ratio - 1.0) < Z * se, (ratio, se)
+    np.testing.assert_allclose(film.image((n_pix, 1)).mean(), mu, atol=Z * sigma / np.sqrt(3 * n_pix * sum(sizes)))
+    one = Film(3, per_sample=False)
+    one.add(BatchResult(np.ones((3, 3)), None, 0), 2)
+    assert one.variance((3, 1)) is None               # one batch: no spread to measure

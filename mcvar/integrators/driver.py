@@ -40,8 +40,10 @@ PATHS_PER_BATCH = 1 << 16
 #: (``render(..., max_memory=...)`` overrides it).
 MAX_RENDER_BYTES = 4 * 2 ** 30
 #: Working memory per path of a batch in flight (state, temporaries, shadow
-#: rays), bytes: an upper estimate (tracemalloc peak of a 2^16-path Cornell
-#: batch, benchmarks/bench_render.py, divided by its paths, rounded up).
+#: rays, sample stream), bytes: an upper estimate. Measured (tracemalloc peak
+#: of one 2^16-path Cornell batch, film included): 400 B/path for the
+#: Lambertian kernel, 660 for the general loop, 740 with the sobol sampler;
+#: 2048 leaves room for deeper scenes and other methods.
 BYTES_PER_PATH = 2048
 
 
@@ -173,20 +175,20 @@ def _batch_sizes(spp: int, n_pix: int, batch_spp, sampler: str) -> list[int]:
     return sizes
 
 
-def _sampler_dim(method: Method, max_depth) -> int:
+def _sampler_dim(method: Method, max_depth, sampler_dim: int) -> int:
     """Columns of the sample stream the ``sampler`` feeds for ``method``."""
     if method.kind == "first_hit":
         return CAMERA_DIMS
     depth = method.fixed_depth if method.fixed_depth is not None else max_depth
     need = stream_dim(depth)
-    return SAMPLER_DIM if need is None else max(CAMERA_DIMS, min(SAMPLER_DIM, need))
+    return sampler_dim if need is None else max(CAMERA_DIMS, min(sampler_dim, need))
 
 
 def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sampler: str = "random",
            rng=None, max_depth: int | None = None, heuristic: str = "power", batch_spp: int | None = None,
            workers: int = 1, executor=None, progress: bool | Callable[[int, int], None] = False,
            precision: Literal["float32", "float64"] = "float32", max_memory: int | None = None,
-           **options) -> Render:
+           sampler_dim: int | None = None, **options) -> Render:
     """Render ``scene`` with one method: the mean radiance of ``spp`` samples per pixel.
 
     Parameters
@@ -203,9 +205,9 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
         Square side, or ``(width, height)``.
     sampler : str
         A sampler of :data:`mcvar.samplers.SAMPLERS`; it feeds the first
-        :data:`~mcvar.integrators.stream.SAMPLER_DIM` columns of every path's
-        sample stream (pixel position, then per vertex light, BSDF, roulette
-        and emitter choice: :mod:`mcvar.integrators.stream`), iid beyond.
+        ``sampler_dim`` columns of every path's sample stream (pixel position,
+        then per vertex light, BSDF, roulette and emitter choice:
+        :mod:`mcvar.integrators.stream`), iid beyond.
     rng : None, int, SeedSequence or Generator
         The same seed gives the same image, for any ``workers`` or ``executor``.
     max_depth : int or None
@@ -234,6 +236,12 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
     precision : {'float32', 'float64'}
         Ray-geometry precision of the intersection tests (radiance is always
         accumulated in float64).
+    sampler_dim : int, optional
+        Columns of every path's sample stream the ``sampler`` feeds (default
+        :data:`~mcvar.integrators.stream.SAMPLER_DIM` = 20: the camera and three
+        vertices; at most what ``max_depth`` reads); later columns are iid.
+        Each pair of columns costs about 0.1 s per million paths to draw
+        (per-pixel shuffles), so fewer pay on fast renders.
     max_memory : int, optional
         Memory budget in bytes (default :data:`MAX_RENDER_BYTES`): a render
         whose :func:`estimate_render_bytes` exceeds it is refused with a
@@ -286,7 +294,8 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
             raise ValueError(f"max_depth must be None or {method.fixed_depth} for {method.name!r}; got {max_depth}")
     n_pix = size[0] * size[1]
     sizes = _batch_sizes(spp, n_pix, batch_spp, sampler)
-    dim = _sampler_dim(method, max_depth)
+    dim = _sampler_dim(method, max_depth, SAMPLER_DIM if sampler_dim is None
+                       else max(CAMERA_DIMS, check_count(sampler_dim, "sampler_dim")))
     budget = MAX_RENDER_BYTES if max_memory is None else check_count(max_memory, "max_memory")
     whole_dims = 0 if sampler == "random" or len(sizes) == 1 else \
         min(dim, WHOLE_SET_FLOATS // (n_pix * spp)) // 2 * 2

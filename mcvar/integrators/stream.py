@@ -65,11 +65,10 @@ class SampleStream:
     u : ndarray, shape (n, D), or None
         The paths' sample matrix (rows in path order); None: everything from ``rng``.
     rng : numpy.random.Generator
-    start : int
-        The column of ``u`` that holds :meth:`vertex` ``1``'s first dimension
-        minus :data:`CAMERA_DIMS` (0 when ``u`` starts with the camera
-        columns, ``-2`` when it starts at vertex 1, as in
-        :func:`~mcvar.integrators.trace_paths`).
+        Dimensions beyond ``u``'s columns (iid).
+    camera : bool
+        True: ``u`` starts with the camera columns (the layout above); False:
+        it starts at vertex 1 (:func:`~mcvar.integrators.trace_paths`).
     """
 
     def __init__(self, u, rng, *, camera: bool = True):
