@@ -25,13 +25,8 @@ from .report import _CSS, _PRINT_JS, _clauses, _csv, _details, _fmt, _img, _tabl
 
 __all__ = ["chart_report", "chart_section", "write_chart", "plot_chart"]
 
+# chart.png's cell colours (chart.html's come from the report's stylesheet: table.chart)
 _AGREE, _DIFFER, _HEAD = "#e3f1e0", "#fbe2c5", "#e8e8e8"
-
-# the chart's table: cells that differ from the lecture are marked
-_CHART_CSS = ("table.chart td{text-align:center}table.chart td:first-child{text-align:left;font-weight:600}"
-              "table.chart td:last-child{text-align:left;max-width:30em}"
-              "table.chart td.differs{background:" + _DIFFER + "}"
-              "table.chart td.agrees{background:" + _AGREE + "}")
 
 
 def _chart_rows(result: ChartResult) -> list[dict]:
@@ -109,14 +104,15 @@ def chart_section(result: ChartResult, png=None, *, heading: str = "h2") -> str:
         "against one path-traced reference. <b>unbiased</b>: no level's image mean differs from the "
         f"reference's (Welch t test, Sidak-corrected to family-wise alpha = {result.alpha:g}); "
         "<b>consistent</b>: the MSE falls over the levels and the bias vanishes. MSE x time is at the "
-        f"largest level (1 / efficiency). Orange: measured differs from the lecture. ({mode}, "
-        f"{result.seconds:.0f} s)</p>",
+        f"largest level (1 / efficiency). Orange: measured differs from the lecture; the last column says "
+        f"why. (<code>mcvar chart</code>, {mode} settings)</p>",
         table,
     ]
-    if png is not None:
-        parts.append(_img(png, "The lecture's chart with the measured columns beside it; orange cells "
-                               "differ from the lecture."))
     parts.append(_details("Evidence behind each measured answer", *evidence))
+    if png is not None:
+        parts.append(_details("The chart as a figure (chart.png)",
+                              _img(png, "The lecture's chart with the measured columns beside it; orange "
+                                        "cells differ from the lecture.")))
     return "\n".join(parts)
 
 
@@ -143,15 +139,16 @@ def write_chart(result: ChartResult, out, *, command: str | None = None) -> dict
               for row in result.rows]
     if command:
         facts.append(("command", command))
-    body = [f"<h1>The lecture's Rendering Algorithm Chart, measured</h1>",
-            f"<p class='lead'>{len(result.rows)} registered methods on the Cornell box.</p>",
+    body = ["<h1>Rendering methods: consistent? unbiased?</h1>",
+            f"<p class='lead'>{len(result.rows)} registered methods on the Cornell box, "
+            f"{result.seconds:.0f} s.</p>",
             chart_section(result, paths["png"]),
             _details("Settings", _table(("setting", "value"), facts)),
             "<p class='note'>The numbers are in <code>chart.csv</code> beside this page.</p>"]
     page = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             "<meta name='viewport' content='width=device-width,initial-scale=1'>"
             "<link rel='icon' href='data:,'><title>mcvar: the rendering-methods chart, measured</title>"
-            f"<style>{_CSS}{_CHART_CSS}</style>{_PRINT_JS}</head><body>" + "\n".join(body) + "</body></html>")
+            f"<style>{_CSS}</style>{_PRINT_JS}</head><body>" + "\n".join(body) + "</body></html>")
     paths["html"] = out / "chart.html"
     paths["html"].write_text(page, encoding="utf-8")
     return {"html": paths.pop("html"), **paths}

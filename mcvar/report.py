@@ -42,9 +42,11 @@ __all__ = ["convergence_report", "demo", "write_report", "pareto_front", "lectur
 #: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
 #: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
 #: took 50-76 s there; 64 x 64 with those levels took 9 minutes). The reference is
-#: 8 chunks of 256 spp.
+#: 8 chunks of 256 spp. ``chart``: keyword arguments of :func:`mcvar.experiments.measure_chart`
+#: for the report's measured rendering-methods chart (written to ``out/chart``; None: no chart).
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256)
+                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256,
+                     chart=dict(quick=True))
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
 
@@ -375,6 +377,9 @@ img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}cod
 .tile img{width:256px;height:auto;image-rendering:pixelated}
 .note{font-size:12px;color:#555}.scroll{overflow-x:auto}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
 margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
+table.chart td,table.chart th{text-align:center}table.chart td:first-child,table.chart td:nth-child(2){text-align:left}
+table.chart td:first-child{font-weight:600}table.chart td:last-child{text-align:left;max-width:30em}
+table.chart td.differs{background:#fbe2c5}table.chart td.agrees{background:#e3f1e0}
 @media print{body{max-width:none;margin:0}details{border:none;padding:0}
 details::details-content{content-visibility:visible;display:contents}
 summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}
@@ -386,7 +391,7 @@ _PRINT_JS = ("<script>addEventListener('beforeprint',function(){document.querySe
 
 
 def write_report(result: SweepResult, out, *, elapsed: float | None = None,
-                 command: str | None = None, progress_note: str = "") -> dict[str, Path]:
+                 command: str | None = None, progress_note: str = "", sections=()) -> dict[str, Path]:
     """Write the figures, CSVs and ``report.html`` of a finished sweep.
 
     The page opens with what a reader wants first: the verdict per method
@@ -409,6 +414,9 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
         Wall time of the whole sweep, shown in the summary.
     command : str, optional
         The command line that produced it, shown in the summary.
+    sections : sequence of str, optional
+        Further HTML sections, placed before the details (``mcvar demo``
+        adds the measured rendering-methods chart).
 
     Returns
     -------
@@ -495,6 +503,7 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     ]
     if is_image:
         body += ["<h2>Images</h2>", _image_tiles(result)]
+    body += list(sections)
     body += [
         "<h2>Details</h2>",
         _details("Evidence behind each verdict", *evidence),
@@ -539,7 +548,7 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
 
 def convergence_report(target, out, *, methods=None, samplers=None, spp=None, replicates: int = 8,
                        res: int = 32, seed: int = 0, workers: int | None = None,
-                       progress: bool = True, executor=None, reference=None) -> dict[str, Path]:
+                       progress: bool = True, executor=None, reference=None, sections=()) -> dict[str, Path]:
     """Sweep ``target`` and write its convergence report into ``out``.
 
     Parameters
@@ -558,6 +567,8 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
         4, ..., 4096.
     replicates, res, seed, workers, executor, reference
         As in :func:`mcvar.experiments.sweep`.
+    sections : sequence of str, optional
+        Further HTML sections for the page (:func:`write_report`).
 
     Returns
     -------
@@ -570,7 +581,7 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
                    seed=seed, reference=reference, executor=executor, workers=workers,
                    cache_dir=Path(out) / ".cache", progress=progress, image_metrics=True)
     elapsed = time.perf_counter() - start
-    return write_report(result, out, elapsed=elapsed)
+    return write_report(result, out, elapsed=elapsed, sections=sections)
 
 
 def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str, Path]:
@@ -582,9 +593,25 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
     missing) and direct lighting, each with the random, jittered and Sobol
     samplers at 1, 4, 16 and 64 spp, 6 replicates, 64 x 64 pixels, against a
     reference of 8 x 256 spp (its own variance enters every test).
+
+    The report includes the lecture's Rendering Algorithm Chart measured by
+    ``mcvar chart --quick`` (:mod:`mcvar.chart_report`; its files in
+    ``out/chart``).
     """
     s = DEMO_SETTINGS
+    sections, chart_paths = [], {}
+    if s.get("chart") is not None:
+        from .chart_report import chart_section, write_chart
+        from .experiments import measure_chart
+
+        chart = measure_chart(workers=workers, progress=progress, cache_dir=Path(out) / "chart" / ".cache",
+                              **s["chart"])
+        chart_paths = write_chart(chart, Path(out) / "chart", command="mcvar chart --quick")
+        sections.append(chart_section(chart, chart_paths["png"])
+                        + "<p class='note'>Also in <code>chart/chart.html</code> and <code>chart/chart.csv"
+                          "</code> beside this page.</p>")
     target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
-    return convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
-                              replicates=s["replicates"], res=s["res"], seed=s["seed"],
-                              workers=workers, progress=progress)
+    paths = convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
+                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
+                               workers=workers, progress=progress, sections=sections)
+    return {**paths, **{f"chart_{k}": v for k, v in chart_paths.items()}}

@@ -28,7 +28,7 @@ LAYERS = {
 # not been written yet (its test fails once it is a package on disk).
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
-    "experiments": ["targets", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
+    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
     "integrators": None,  # filled when mcvar/integrators/ becomes a package (issue 10)
 }
