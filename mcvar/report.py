@@ -33,6 +33,7 @@ import numpy as np
 from scipy import stats
 
 from .experiments import SweepResult, make_target, scene_target, sweep
+from .experiments.chart import LECTURE_CHART
 from .images import linear_to_srgb
 from .plotting import plot_loglog, plt, save_figure
 
@@ -307,13 +308,11 @@ def _image_tiles(result: SweepResult) -> str:
 
 
 #: The lecture's claims: 'Rendering Algorithm Chart' (consistent?, unbiased?)
-#: per integrator, and the 'Bias & Consistency' / 'Consistent Or Unbiased?'
-#: slides for the estimators of the lecture target.
-LECTURE_CLAIMS = {
-    "raster": ("no", "no"), "path": ("almost", "almost"), "bdpt": ("yes", "yes"),
-    "mlt": ("yes", "yes"), "pssmlt": ("yes", "yes"), "photon": ("yes", "no"),
-    "radiosity": ("no", "no"),
-}
+#: per integrator (the chart's table, :data:`mcvar.experiments.chart.LECTURE_CHART`,
+#: without the fixed-depth row), and the 'Bias & Consistency' / 'Consistent Or
+#: Unbiased?' slides for the estimators of the lecture target.
+LECTURE_CLAIMS = {**{m: c for m, c in LECTURE_CHART.items() if m != "path_depth3"},
+                  "mlt": LECTURE_CHART["pssmlt"]}
 LECTURE_ESTIMATOR_CLAIMS = {
     "uniform": ("yes", "yes"), "grid": ("yes", "no"), "single": ("no", "yes"), "undivided": ("no", "no"),
 }
