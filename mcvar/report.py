@@ -323,21 +323,23 @@ def lecture_claim(target: str, method: str):
 
     Integrators take the chart's row of their base name (``'path:3'`` and
     ``'path+tv'`` have none: the chart speaks of path tracing as such); a
-    method registered with a ``lecture`` claim (:mod:`mcvar.integrators`)
-    overrides the table.
+    method the chart does not name takes its registered ``lecture`` claim
+    (:mod:`mcvar.integrators`).
     """
     if target == "lecture":
         return LECTURE_ESTIMATOR_CLAIMS.get(method)
     if ":" in method or "+" in method:
         return None
+    if method in LECTURE_CLAIMS:  # the slide's own rows are quoted as they are
+        return LECTURE_CLAIMS[method]
     try:
-        from .integrators import METHODS  # the registry, where present
+        from .integrators import METHODS  # the registry, for methods the slide does not name
         claim = getattr(METHODS.get(method), "lecture", None)
         if claim is not None:
             return tuple(claim)
     except ImportError:
         pass
-    return LECTURE_CLAIMS.get(method)
+    return None
 
 
 def _verdict_table(result: SweepResult) -> str:

@@ -72,22 +72,26 @@ def test_chart_csv_has_the_columns_and_one_row_per_registered_method(tmp_path):
     assert chart.LECTURE_CHART["photon"] == ("yes", "no") and chart.LECTURE_CHART["radiosity"] == ("no", "no")
 
 
-def test_rows_appear_when_methods_register_and_the_registry_claim_wins(monkeypatch):
+def test_rows_appear_when_methods_register_and_the_slide_is_quoted(monkeypatch):
     monkeypatch.setattr(integrators, "INTEGRATORS", ("path", "raster", "bdpt"))
     monkeypatch.setattr(integrators, "METHODS", {}, raising=False)
     assert chart.chart_methods() == ("raster", "path", "path_depth3", "bdpt")
     registry = {"path": SimpleNamespace(lecture=("yes", "no"), options={}),
+                "direct": SimpleNamespace(lecture=("no", "no"), options={}),   # no knob: no row
                 "sppm": SimpleNamespace(lecture=None, options={"photons": 1, "batch_spp": 1}),
                 "mine": SimpleNamespace(lecture=("no", "yes"), options={})}
     monkeypatch.setattr(integrators, "METHODS", registry, raising=False)
+    monkeypatch.setitem(chart.KNOBS, "mine", chart.spp_knob("mine", bounces=2))
     assert chart.chart_methods() == ("path", "path_depth3", "sppm", "mine")
-    assert chart.lecture_chart_claim("path_depth3") == ("yes", "no")   # the registry's path claim
-    assert chart.lecture_chart_claim("sppm") == ("yes", "no")          # the table's
-    assert chart.lecture_chart_claim("mine") == ("no", "yes")
+    assert chart.lecture_chart_claim("path") == ("almost", "almost")      # the slide, not the registry
+    assert chart.lecture_chart_claim("path_depth3") == ("almost", "almost")
+    assert chart.lecture_chart_claim("sppm") == ("yes", "no")             # the slide's photon mapping row
+    assert chart.lecture_chart_claim("mine") == ("no", "yes")             # not on the slide: the registry's
+    with pytest.raises(ValueError, match="'direct_bsdf' has no lecture claim"):
+        chart.lecture_chart_claim("direct_bsdf")
     # sppm's knob asks for 'photons' (accepted); a knob asking for an option the method lacks falls back
     knob, note = chart._knob_for("sppm")
     assert knob is chart.KNOBS["sppm"] and note == ""
-    monkeypatch.setitem(chart.KNOBS, "mine", chart.spp_knob("mine", bounces=2))
     knob, note = chart._knob_for("mine")
     assert knob.counts == "spp" and "bounces" in note and knob.options(8) == {"integrator": "mine", "spp": 8}
 

@@ -28,12 +28,15 @@ Which methods
 The chart's rows are :data:`CHART_METHODS` (``raster, path, path_depth3,
 light, bdpt, pssmlt, photon, sppm, radiosity``; ``path_depth3`` is ``path``
 with ``max_depth=3``) whose integrator is registered, followed by any other
-registered method that declares a lecture claim (``Method.lecture`` of the
-integrator registry). A method that is not registered has no row; it gets one
-when it registers.
+registered method that declares both a chart knob (:func:`register_knob`) and
+a lecture claim (``Method.lecture`` of the integrator registry). A method that
+is not registered has no row; it gets one when it registers.
 
-The lecture's claim of a row is ``Method.lecture`` of the registry when the
-method declares one, else :data:`LECTURE_CHART`.
+The lecture's claim of a chart method is the slide's (:data:`LECTURE_CHART`):
+the chart quotes the lecture, so a registry claim for a method the slide
+names does not replace it (``path`` registers ``Method.lecture = ('yes',
+'yes')``, what theory says, while the slide says 'almost'). Other methods
+take ``Method.lecture``.
 """
 from __future__ import annotations
 
@@ -79,8 +82,8 @@ LECTURE_ROWS = {
     "Finite Element Radiosity": ("no", "no"),
 }
 
-#: The lecture's claim per chart method (consistent?, unbiased?); superseded by
-#: ``Method.lecture`` of the integrator registry where a method declares one.
+#: The lecture's claim per chart method (consistent?, unbiased?), as on the slide; methods the
+#: slide does not name take ``Method.lecture`` of the integrator registry.
 LECTURE_CHART = {method: LECTURE_ROWS[row] for method, row in CHART_METHODS.items()}
 
 #: What theory says of each chart method, measured with its knob: (consistent, unbiased, why).
@@ -218,24 +221,24 @@ def _spp_integrator(knob: Knob) -> str:
 
 def chart_methods() -> tuple:
     """The chart's rows: :data:`CHART_METHODS` whose integrator is registered, in
-    the lecture's order, then any other registered method declaring a lecture claim."""
+    the lecture's order, then any other registered method with a chart knob
+    (:func:`register_knob`) and a lecture claim (``Method.lecture``)."""
     registry, names = _registry()
     rows = [m for m in CHART_METHODS if _base(m) in names]
-    rows += [name for name, m in registry.items()
-             if name not in rows and getattr(m, "lecture", None) is not None]
+    rows += [name for name, m in registry.items() if name not in rows and name in KNOBS
+             and getattr(m, "lecture", None) is not None]
     return tuple(rows)
 
 
 def lecture_chart_claim(method: str) -> tuple[str, str]:
-    """The lecture's ``(consistent, unbiased)`` for a chart method: ``Method.lecture``
-    of the registry (of the base integrator for ``path_depth3``), else :data:`LECTURE_CHART`."""
-    registry, _ = _registry()
-    entry = registry.get(_base(method)) or registry.get(method)
-    claim = getattr(entry, "lecture", None)
-    if claim is not None:
-        return tuple(str(c) for c in claim)
+    """The lecture's ``(consistent, unbiased)`` for a chart method: the slide's
+    (:data:`LECTURE_CHART`), else ``Method.lecture`` of the integrator registry."""
     if method in LECTURE_CHART:
         return LECTURE_CHART[method]
+    registry, _ = _registry()
+    claim = getattr(registry.get(method), "lecture", None)
+    if claim is not None:
+        return tuple(str(c) for c in claim)
     raise ValueError(f"method {method!r} has no lecture claim (not in LECTURE_CHART, no Method.lecture)")
 
 

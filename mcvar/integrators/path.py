@@ -352,5 +352,6 @@ _SUMMARIES = {
 for _name, _mode in _MODES.items():
     register(Method(_name, "camera", partial(run_path_batch, _name), _SUMMARIES[_name],
                     options={"kernel": "auto"}, check_scene=_check_kernel,
-                    lecture=("yes", "yes") if _mode.depth is None else ("no", "no"),
+                    # the slide's 'Path Tracing' row; it names no direct-lighting method
+                    lecture=("almost", "almost") if _mode.depth is None else None,
                     fixed_depth=_mode.depth))
