@@ -142,18 +142,24 @@ def _spp_options(integrator: str, level: int, **fixed) -> dict:
     return dict(integrator=integrator, spp=level, **fixed)
 
 
+# The photon, sppm and radiosity settings follow branch photon's tuning of its registered methods
+# (options photons/radius, photons/radius/alpha, patch_size/rays_per_side/emitter_rays).
 def _photon_options(level: int) -> dict:
-    return dict(integrator="photon", spp=4, photons=4096 * level, radius=20.0)
+    # more photons at a fixed gather radius: the blur stays
+    return dict(integrator="photon", spp=4, photons=2048 * level, radius=40.0)
 
 
 def _sppm_options(level: int) -> dict:
     # one progressive run of `level` iterations (one batch: the radius keeps shrinking)
-    return dict(integrator="sppm", spp=level, batch_spp=level, photons=4096)
+    return dict(integrator="sppm", spp=level, batch_spp=level, photons=2048, radius=40.0)
 
 
 def _radiosity_options(level: int) -> dict:
-    # patch size halves as the level quadruples (level 1: about two patches per wall side)
-    return dict(integrator="radiosity", spp=4, patch_size=280.0 / np.sqrt(level))
+    # patch size halves as the level quadruples; form-factor rays, emitter rays and pixel samples
+    # refined with it (at fixed spp the pixel-sampling noise would hide the shrinking mesh bias)
+    root = float(np.sqrt(level))
+    return dict(integrator="radiosity", spp=4 * level, patch_size=280.0 / root, rays_per_side=int(round(16 * root)),
+                emitter_rays=4096 * level)
 
 
 def spp_knob(integrator: str, **fixed) -> Knob:
@@ -169,8 +175,8 @@ KNOBS: dict = {
     "light": spp_knob("light"),
     "bdpt": spp_knob("bdpt"),
     "pssmlt": spp_knob("pssmlt"),
-    "photon": Knob("photons (x 4096, radius 20)", _photon_options, (1, 4, 16), (1, 4, 16, 64)),
-    "sppm": Knob("iterations (4096 photons each)", _sppm_options, (1, 4, 16), (1, 4, 16, 64)),
+    "photon": Knob("photons (x 2048, radius 40)", _photon_options, (1, 4, 16), (1, 4, 16, 64)),
+    "sppm": Knob("iterations (2048 photons each)", _sppm_options, (1, 4, 16), (1, 4, 16, 64)),
     "radiosity": Knob("mesh refinement (patch size 280 / sqrt(level))", _radiosity_options,
                       (1, 4, 16), (1, 4, 16, 64)),
 }
