@@ -78,7 +78,7 @@ def test_rows_appear_when_methods_register_and_the_slide_is_quoted(monkeypatch):
     assert chart.chart_methods() == ("raster", "path", "path_depth3", "bdpt")
     registry = {"path": SimpleNamespace(lecture=("yes", "no"), options={}),
                 "direct": SimpleNamespace(lecture=("no", "no"), options={}),   # no knob: no row
-                "sppm": SimpleNamespace(lecture=None, options={"photons": 1, "batch_spp": 1}),
+                "sppm": SimpleNamespace(lecture=None, options={"photons": 1, "radius": None, "alpha": 0.7}),
                 "mine": SimpleNamespace(lecture=("no", "yes"), options={})}
     monkeypatch.setattr(integrators, "METHODS", registry, raising=False)
     monkeypatch.setitem(chart.KNOBS, "mine", chart.spp_knob("mine", bounces=2))
@@ -89,7 +89,7 @@ def test_rows_appear_when_methods_register_and_the_slide_is_quoted(monkeypatch):
     assert chart.lecture_chart_claim("mine") == ("no", "yes")             # not on the slide: the registry's
     with pytest.raises(ValueError, match="'direct_bsdf' has no lecture claim"):
         chart.lecture_chart_claim("direct_bsdf")
-    # sppm's knob asks for 'photons' (accepted); a knob asking for an option the method lacks falls back
+    # sppm's knob asks for 'photons' and 'radius' (accepted); a knob asking for an option the method lacks falls back
     knob, note = chart._knob_for("sppm")
     assert knob is chart.KNOBS["sppm"] and note == ""
     knob, note = chart._knob_for("mine")
