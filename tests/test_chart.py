@@ -151,3 +151,14 @@ def test_chart_page_in_a_real_browser(tmp_path):
     assert [c[2:4] for c in cells] == [["almost", "almost"]] * 2
     assert marked == 4  # every measured answer differs from 'almost'
     assert len(images) == 1 and images[0] > 0
+
+
+def test_cached_runs_and_reference_do_not_depend_on_which_methods_run(tmp_path):
+    a = chart.measure_chart(methods=["path"], cache_dir=tmp_path, workers=1, progress=False, **TINY)
+    b = chart.measure_chart(methods=["raster", "path"], cache_dir=tmp_path, workers=1, progress=False, **TINY)
+    runs = len(TINY["levels"]) * TINY["replicates"]
+    assert (a.sweeps["path"].computed, b.sweeps["path"].cached, b.sweeps["path"].computed) == (runs, runs, 0)
+    assert b.sweeps["raster"].computed == runs and b.reference.source.startswith("cache:")
+    np.testing.assert_array_equal(b.reference.value, a.reference.value)
+    # the same runs (values and their cached timings) give the same row
+    assert a.rows[0].csv_row() == b.rows[1].csv_row()

@@ -297,8 +297,9 @@ def chart_target(scene: str = "cornell", *, res: int = 16, reference_spp: int = 
                          f"got {reference_chunks}")
     _scene(scene)
     knobs = dict(knobs if knobs is not None else {m: _knob_for(m)[0] for m in chart_methods()})
-    # the knobs' options at their first two levels describe them in the cache key
-    described = ";".join(f"{m}={k.counts}:{sorted(k.options(1).items())}" for m, k in sorted(knobs.items()))
+    # each knob's options at levels 1 and 4 describe it in the cache key
+    described = ";".join(f"{m}={k.counts}:{sorted(k.options(1).items())}:{sorted(k.options(4).items())}"
+                         for m, k in sorted(knobs.items()))
     return Target(name=f"{scene} chart", evaluate=partial(_chart_evaluate, scene, res, knobs),
                   key=f"chart;scene={scene};res={res};{described}", methods=tuple(knobs),
                   samplers=("random",), spp=(1, 4, 16, 64),
@@ -447,19 +448,23 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
         if len(levels) < 2:
             raise ValueError(f"levels must hold >= 2 levels; got {levels}")
     start = time.perf_counter()
-    target = chart_target(scene, res=settings["res"], reference_spp=settings["reference_spp"],
-                          reference_chunks=settings["reference_chunks"], knobs=knobs)
+    # one target per method, its key naming that method's knob only, and the reference's
+    # target naming none: cached runs and the reference do not depend on which methods run
+    targets = {m: chart_target(scene, res=settings["res"], reference_spp=settings["reference_spp"],
+                               reference_chunks=settings["reference_chunks"],
+                               knobs={m: knobs[m]} if m else {})
+               for m in (None, *methods)}
     n_workers = workers or os.cpu_count() or 1
     executor = SerialExecutor() if n_workers == 1 else ProcessPoolExecutor(max_workers=n_workers)
     try:
-        reference = compute_reference(target, seed=seed, executor=executor, cache_dir=cache_dir,
+        reference = compute_reference(targets[None], seed=seed, executor=executor, cache_dir=cache_dir,
                                       progress=progress)
         sweeps, rows = {}, []
         for m in methods:
             knob = knobs[m]
             mlevels = levels or (knob.quick if quick else knob.default)
             t0 = time.perf_counter()
-            result = sweep(target, methods=[m], samplers=["random"], spp=mlevels,
+            result = sweep(targets[m], methods=[m], samplers=["random"], spp=mlevels,
                            replicates=settings["replicates"], seed=seed, reference=reference,
                            executor=executor, cache_dir=cache_dir, alpha=alpha, progress=progress)
             sweeps[m] = result
