@@ -33,6 +33,7 @@ import numpy as np
 from scipy import stats
 
 from .experiments import SweepResult, make_target, scene_target, sweep
+from .experiments.chart import LECTURE_CHART
 from .images import linear_to_srgb
 from .plotting import plot_loglog, plt, save_figure
 
@@ -42,9 +43,11 @@ __all__ = ["convergence_report", "demo", "write_report", "pareto_front", "lectur
 #: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
 #: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
 #: took 50-76 s there; 64 x 64 with those levels took 9 minutes). The reference is
-#: 8 chunks of 256 spp.
+#: 8 chunks of 256 spp. ``chart``: keyword arguments of :func:`mcvar.experiments.measure_chart`
+#: for the report's measured rendering-methods chart (written to ``out/chart``; None: no chart).
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256)
+                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256,
+                     chart=dict(quick=True))
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
 
@@ -305,13 +308,11 @@ def _image_tiles(result: SweepResult) -> str:
 
 
 #: The lecture's claims: 'Rendering Algorithm Chart' (consistent?, unbiased?)
-#: per integrator, and the 'Bias & Consistency' / 'Consistent Or Unbiased?'
-#: slides for the estimators of the lecture target.
-LECTURE_CLAIMS = {
-    "raster": ("no", "no"), "path": ("almost", "almost"), "bdpt": ("yes", "yes"),
-    "mlt": ("yes", "yes"), "pssmlt": ("yes", "yes"), "photon": ("yes", "no"),
-    "radiosity": ("no", "no"),
-}
+#: per integrator (the chart's table, :data:`mcvar.experiments.chart.LECTURE_CHART`,
+#: without the fixed-depth row), and the 'Bias & Consistency' / 'Consistent Or
+#: Unbiased?' slides for the estimators of the lecture target.
+LECTURE_CLAIMS = {**{m: c for m, c in LECTURE_CHART.items() if m != "path_depth3"},
+                  "mlt": LECTURE_CHART["pssmlt"]}
 LECTURE_ESTIMATOR_CLAIMS = {
     "uniform": ("yes", "yes"), "grid": ("yes", "no"), "single": ("no", "yes"), "undivided": ("no", "no"),
 }
@@ -322,21 +323,23 @@ def lecture_claim(target: str, method: str):
 
     Integrators take the chart's row of their base name (``'path:3'`` and
     ``'path+tv'`` have none: the chart speaks of path tracing as such); a
-    method registered with a ``lecture`` claim (:mod:`mcvar.integrators`)
-    overrides the table.
+    method the chart does not name takes its registered ``lecture`` claim
+    (:mod:`mcvar.integrators`).
     """
     if target == "lecture":
         return LECTURE_ESTIMATOR_CLAIMS.get(method)
     if ":" in method or "+" in method:
         return None
+    if method in LECTURE_CLAIMS:  # the slide's own rows are quoted as they are
+        return LECTURE_CLAIMS[method]
     try:
-        from .integrators import METHODS  # the registry, where present
+        from .integrators import METHODS  # the registry, for methods the slide does not name
         claim = getattr(METHODS.get(method), "lecture", None)
         if claim is not None:
             return tuple(claim)
     except ImportError:
         pass
-    return LECTURE_CLAIMS.get(method)
+    return None
 
 
 def _verdict_table(result: SweepResult) -> str:
@@ -375,6 +378,9 @@ img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}cod
 .tile img{width:256px;height:auto;image-rendering:pixelated}
 .note{font-size:12px;color:#555}.scroll{overflow-x:auto}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
 margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
+table.chart td,table.chart th{text-align:center}table.chart td:first-child,table.chart td:nth-child(2){text-align:left}
+table.chart td:first-child{font-weight:600}table.chart td:last-child{text-align:left;max-width:30em}
+table.chart td.differs{background:#fbe2c5}table.chart td.agrees{background:#e3f1e0}
 @media print{body{max-width:none;margin:0}details{border:none;padding:0}
 details::details-content{content-visibility:visible;display:contents}
 summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}
@@ -386,7 +392,7 @@ _PRINT_JS = ("<script>addEventListener('beforeprint',function(){document.querySe
 
 
 def write_report(result: SweepResult, out, *, elapsed: float | None = None,
-                 command: str | None = None, progress_note: str = "") -> dict[str, Path]:
+                 command: str | None = None, progress_note: str = "", sections=()) -> dict[str, Path]:
     """Write the figures, CSVs and ``report.html`` of a finished sweep.
 
     The page opens with what a reader wants first: the verdict per method
@@ -409,6 +415,9 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
         Wall time of the whole sweep, shown in the summary.
     command : str, optional
         The command line that produced it, shown in the summary.
+    sections : sequence of str, optional
+        Further HTML sections, placed before the details (``mcvar demo``
+        adds the measured rendering-methods chart).
 
     Returns
     -------
@@ -496,6 +505,7 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     ]
     if is_image:
         body += ["<h2>Images</h2>", _image_tiles(result)]
+    body += list(sections)
     body += [
         "<h2>Details</h2>",
         _details("Evidence behind each verdict", *evidence),
@@ -540,7 +550,7 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
 
 def convergence_report(target, out, *, methods=None, samplers=None, spp=None, replicates: int = 8,
                        res: int = 32, seed: int = 0, workers: int | None = None,
-                       progress: bool = True, executor=None, reference=None) -> dict[str, Path]:
+                       progress: bool = True, executor=None, reference=None, sections=()) -> dict[str, Path]:
     """Sweep ``target`` and write its convergence report into ``out``.
 
     Parameters
@@ -559,6 +569,8 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
         4, ..., 4096.
     replicates, res, seed, workers, executor, reference
         As in :func:`mcvar.experiments.sweep`.
+    sections : sequence of str, optional
+        Further HTML sections for the page (:func:`write_report`).
 
     Returns
     -------
@@ -571,7 +583,7 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
                    seed=seed, reference=reference, executor=executor, workers=workers,
                    cache_dir=Path(out) / ".cache", progress=progress, image_metrics=True)
     elapsed = time.perf_counter() - start
-    return write_report(result, out, elapsed=elapsed)
+    return write_report(result, out, elapsed=elapsed, sections=sections)
 
 
 def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str, Path]:
@@ -583,9 +595,25 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
     missing) and direct lighting, each with the random, jittered and Sobol
     samplers at 1, 4, 16 and 64 spp, 6 replicates, 64 x 64 pixels, against a
     reference of 8 x 256 spp (its own variance enters every test).
+
+    The report includes the lecture's Rendering Algorithm Chart measured by
+    ``mcvar chart --quick`` (:mod:`mcvar.chart_report`; its files in
+    ``out/chart``).
     """
     s = DEMO_SETTINGS
+    sections, chart_paths = [], {}
+    if s.get("chart") is not None:
+        from .chart_report import chart_section, write_chart
+        from .experiments import measure_chart
+
+        chart = measure_chart(workers=workers, progress=progress, cache_dir=Path(out) / "chart" / ".cache",
+                              **s["chart"])
+        chart_paths = write_chart(chart, Path(out) / "chart", command="mcvar chart --quick")
+        sections.append(chart_section(chart, chart_paths["png"])
+                        + "<p class='note'>Also in <code>chart/chart.html</code> and <code>chart/chart.csv"
+                          "</code> beside this page.</p>")
     target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
-    return convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
-                              replicates=s["replicates"], res=s["res"], seed=s["seed"],
-                              workers=workers, progress=progress)
+    paths = convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
+                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
+                               workers=workers, progress=progress, sections=sections)
+    return {**paths, **{f"chart_{k}": v for k, v in chart_paths.items()}}

@@ -21,7 +21,8 @@ Modules, each importing only those listed before it
 :mod:`~mcvar.experiments.denoising` (a denoised render as a biased but
 consistent method), :mod:`~mcvar.experiments.runs` (streams, executors, caches),
 :mod:`~mcvar.experiments.reference`, :mod:`~mcvar.experiments.analysis`
-(metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`. Every public
+(metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`,
+:mod:`~mcvar.experiments.chart` (the lecture's rendering-methods chart, measured). Every public
 name is importable from ``mcvar.experiments`` itself.
 """
 from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
@@ -30,6 +31,7 @@ from .runs import CACHE_VERSION, SerialExecutor, run_seed
 from .reference import Reference, compute_reference
 from .analysis import ConfigMetrics, MethodFits, Verdict
 from .sweeps import SweepResult, sweep
+from .chart import ChartResult, ChartRow, Knob, measure_chart, register_knob
 
 __all__ = [
     "Target",
@@ -53,4 +55,9 @@ __all__ = [
     "denoised_target",
     "photo_target",
     "DENOISE_SUFFIX",
+    "ChartResult",
+    "ChartRow",
+    "Knob",
+    "measure_chart",
+    "register_knob",
 ]

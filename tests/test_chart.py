@@ -1,0 +1,164 @@
+"""``mcvar chart``: the lecture's Rendering Algorithm Chart, measured (issue 13)."""
+import csv
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mcvar.integrators")
+
+import mcvar.integrators as integrators  # noqa: E402
+from mcvar.chart_report import chart_report  # noqa: E402
+from mcvar.cli import main  # noqa: E402
+from mcvar.experiments import chart  # noqa: E402
+
+ALL = ("raster", "path", "path_depth3", "light", "bdpt", "pssmlt", "photon", "sppm", "radiosity")
+TINY = dict(res=4, replicates=3, levels=(1, 4), reference_spp=16, reference_chunks=2)
+
+
+def _registered():
+    names = tuple(getattr(integrators, "METHODS", None) or integrators.INTEGRATORS)
+    return [m for m in ALL if (m if m != "path_depth3" else "path") in names]
+
+
+@pytest.fixture(scope="module")
+def measured():
+    """path, path_depth3 and raster on a 16 x 16 Cornell box. Power of the sweep's own bias
+    test (Welch t, Sidak-corrected alpha = 1e-3 over 5 levels, |t| > ~6 with 9 degrees of
+    freedom): depth 3 misses ~10 % of the image mean (~0.012); at 1024 spp the replicate
+    mean's standard error (per-pixel variance ~0.6 at 1 spp, 256 pixels, 10 replicates) is
+    ~5e-4 and the reference's (8 x 2048 spp) ~4e-4, so |t| ~ 20: detected."""
+    return chart.measure_chart(methods=["raster", "path", "path_depth3"], res=16, replicates=10,
+                               levels=(1, 4, 16, 64, 1024), reference_spp=2048, reference_chunks=8,
+                               workers=1, progress=False, seed=3)
+
+
+def test_path_is_measured_unbiased_and_consistent_and_a_fixed_depth_biased(measured):
+    rows = {r.method: r for r in measured.rows}
+    assert (rows["path"].consistent, rows["path"].unbiased) == ("yes", "yes"), rows["path"].evidence
+    assert (rows["path_depth3"].consistent, rows["path_depth3"].unbiased) == ("no", "no"), \
+        rows["path_depth3"].evidence
+    assert rows["raster"].unbiased == "no"
+    # a fixed depth loses light: its bias is negative, detected at the largest level
+    last = [m for m in measured.sweeps["path_depth3"].metrics if m.spp == 1024][0]
+    assert last.bias_detected and last.bias < 0
+    # the lecture says 'almost' for path tracing: both rows differ and say why
+    assert rows["path"].differs and "Russian roulette" in rows["path"].note
+    assert rows["path_depth3"].differs and "fixed depth" in rows["path_depth3"].note
+    assert not rows["raster"].differs and rows["raster"].note == ""
+    assert all(r.mse_x_time > 0 and np.isfinite(r.mse_x_time) for r in measured.rows)
+
+
+def test_chart_csv_has_the_columns_and_one_row_per_registered_method(tmp_path):
+    paths = chart_report(tmp_path, workers=1, progress=False, **TINY)
+    with open(paths["csv"], newline="") as fh:
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+    assert tuple(reader.fieldnames) == chart.CHART_COLUMNS
+    assert [r["method"] for r in rows] == _registered()
+    for r in rows:
+        assert (r["lecture_consistent"], r["lecture_unbiased"]) == chart.lecture_chart_claim(r["method"])
+        assert r["consistent"] in ("yes", "no") and r["unbiased"] in ("yes", "no")
+        assert float(r["mse_x_time"]) > 0
+        differs = (r["consistent"], r["unbiased"]) != (r["lecture_consistent"], r["lecture_unbiased"])
+        assert bool(r["note"]) == differs or "knob" in r["note"]
+    page = paths["html"].read_text()
+    assert all(f"<td>{r['method']}</td>" in page for r in rows)
+    assert paths["png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the lecture's own claims, keyed by method
+    assert chart.LECTURE_CHART["raster"] == ("no", "no") and chart.LECTURE_CHART["path"] == ("almost", "almost")
+    assert chart.LECTURE_CHART["photon"] == ("yes", "no") and chart.LECTURE_CHART["radiosity"] == ("no", "no")
+
+
+def test_rows_appear_when_methods_register_and_the_slide_is_quoted(monkeypatch):
+    monkeypatch.setattr(integrators, "INTEGRATORS", ("path", "raster", "bdpt"))
+    monkeypatch.setattr(integrators, "METHODS", {}, raising=False)
+    assert chart.chart_methods() == ("raster", "path", "path_depth3", "bdpt")
+    registry = {"path": SimpleNamespace(lecture=("yes", "no"), options={}),
+                "direct": SimpleNamespace(lecture=("no", "no"), options={}),   # no knob: no row
+                "sppm": SimpleNamespace(lecture=None, options={"photons": 1, "radius": None, "alpha": 0.7}),
+                "mine": SimpleNamespace(lecture=("no", "yes"), options={})}
+    monkeypatch.setattr(integrators, "METHODS", registry, raising=False)
+    monkeypatch.setitem(chart.KNOBS, "mine", chart.spp_knob("mine", bounces=2))
+    assert chart.chart_methods() == ("path", "path_depth3", "sppm", "mine")
+    assert chart.lecture_chart_claim("path") == ("almost", "almost")      # the slide, not the registry
+    assert chart.lecture_chart_claim("path_depth3") == ("almost", "almost")
+    assert chart.lecture_chart_claim("sppm") == ("yes", "no")             # the slide's photon mapping row
+    assert chart.lecture_chart_claim("mine") == ("no", "yes")             # not on the slide: the registry's
+    with pytest.raises(ValueError, match="'direct_bsdf' has no lecture claim"):
+        chart.lecture_chart_claim("direct_bsdf")
+    # sppm's knob asks for 'photons' and 'radius' (accepted); a knob asking for an option the method lacks falls back
+    knob, note = chart._knob_for("sppm")
+    assert knob is chart.KNOBS["sppm"] and note == ""
+    knob, note = chart._knob_for("mine")
+    assert knob.counts == "spp" and "bounces" in note and knob.options(8) == {"integrator": "mine", "spp": 8}
+
+
+def test_register_knob_checks_its_input(monkeypatch):
+    monkeypatch.setattr(chart, "KNOBS", dict(chart.KNOBS))
+    with pytest.raises(TypeError, match="knob must be a Knob"):
+        chart.register_knob("path", {"spp": 1})
+    with pytest.raises(ValueError, match="knob.quick must hold >= 2 increasing"):
+        chart.register_knob("path", chart.Knob("spp", chart.KNOBS["path"].options, quick=(4, 1)))
+    knob = chart.register_knob("newmethod", chart.spp_knob("newmethod"))
+    assert chart.KNOBS["newmethod"] is knob
+
+
+def test_cli_errors_are_clear(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main(["chart", "--out", str(afile), "--quiet", "--workers", "1"]) == 2
+    assert "out must be a folder" in capsys.readouterr().err
+    assert main(["chart", "--out", str(afile / "sub"), "--quiet", "--workers", "1"]) == 2
+    assert "out: cannot create the folder" in capsys.readouterr().err
+    assert main(["chart", "--out", str(tmp_path / "o"), "--methods", "path,pathh", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "mcvar chart: error: methods must be chart methods" in err and "'pathh'" in err
+    missing = [m for m in ALL if m not in _registered()]
+    if missing:  # a chart method whose integrator has not registered (yet)
+        assert main(["chart", "--out", str(tmp_path / "o"), "--methods", missing[0], "--quiet"]) == 2
+        assert f"['{missing[0]}'] are not registered integrators" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="levels must hold >= 2"):
+        chart.measure_chart(methods=["path"], levels=[4], workers=1, progress=False)
+
+
+CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
+
+
+def test_chart_page_in_a_real_browser(tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    if CHROMIUM is None:
+        pytest.skip("no Chromium browser installed")
+    paths = chart_report(tmp_path, methods=["path", "path_depth3"], workers=1, progress=False, **TINY)
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                                    args=["--headless", "--no-sandbox", "--disable-gpu"])
+        try:
+            page = browser.new_page()
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(paths["html"].resolve().as_uri(), wait_until="load")
+            cells = page.eval_on_selector_all("table.chart tbody tr",
+                                              "rows => rows.map(r => [...r.cells].map(c => c.textContent))")
+            marked = page.eval_on_selector_all("table.chart td.differs", "cs => cs.length")
+            images = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
+        finally:
+            browser.close()
+    assert errors == []
+    assert [c[0] for c in cells] == ["path", "path_depth3"]
+    assert [c[2:4] for c in cells] == [["almost", "almost"]] * 2
+    assert marked == 4  # every measured answer differs from 'almost'
+    assert len(images) == 1 and images[0] > 0
+
+
+def test_cached_runs_and_reference_do_not_depend_on_which_methods_run(tmp_path):
+    a = chart.measure_chart(methods=["path"], cache_dir=tmp_path, workers=1, progress=False, **TINY)
+    b = chart.measure_chart(methods=["raster", "path"], cache_dir=tmp_path, workers=1, progress=False, **TINY)
+    runs = len(TINY["levels"]) * TINY["replicates"]
+    assert (a.sweeps["path"].computed, b.sweeps["path"].cached, b.sweeps["path"].computed) == (runs, runs, 0)
+    assert b.sweeps["raster"].computed == runs and b.reference.source.startswith("cache:")
+    np.testing.assert_array_equal(b.reference.value, a.reference.value)
+    # the same runs (values and their cached timings) give the same row
+    assert a.rows[0].csv_row() == b.rows[1].csv_row()
