@@ -1053,6 +1053,31 @@ def _rectangle_solid_angle(x0, x1, y0, y1, z0):
     return g0 + g1 - k, k, n0[2], n2[2]
 
 
+def _spherical_rectangle_unchecked(u0, u1, x0, x1, y0, y1, z0):
+    """The sampler of :func:`square_to_spherical_rectangle` in the rectangle's
+    local frame (Urena et al. 2013, sec. 4), on arrays of any matching shape:
+    returns ``(xu, yv, S)``, the sample's coordinates ``x0 <= xu <= x1``,
+    ``y0 <= yv <= y1`` in the plane ``z = z0 < 0`` and the solid angle ``S``.
+    No checks: the integrators call it on structure-of-arrays rows."""
+    s, k, b0, b1 = _rectangle_solid_angle(x0, x1, y0, y1, z0)
+    phi = u0 * s + k
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fu = (np.cos(phi) * b0 - b1) / np.sin(phi)
+        cu = np.where(fu > 0.0, 1.0, -1.0) / np.sqrt(fu * fu + b0 * b0)
+        cu = np.clip(np.where(np.isfinite(fu), cu, 0.0), -1.0, 1.0)
+        xu = -(cu * z0) / np.maximum(np.sqrt(1.0 - cu * cu), 1e-300)
+    xu = np.clip(xu, x0, x1)
+    d2 = xu * xu + z0 * z0
+    h0 = y0 / np.sqrt(d2 + y0 * y0)
+    h1 = y1 / np.sqrt(d2 + y1 * y1)
+    hv = h0 + u1 * (h1 - h0)
+    hv2 = hv * hv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        yv = np.where(hv2 < 1.0 - 1e-12, hv * np.sqrt(d2) / np.sqrt(np.maximum(1.0 - hv2, 1e-300)), y1)
+    yv = np.clip(yv, y0, y1)
+    return xu, yv, s
+
+
 def square_to_spherical_rectangle(u, ref_points, origin, edge1, edge2) -> np.ndarray:
     """Point on a rectangle, uniform in the solid angle it subtends at ``ref_points``, shape (n, 3).
 
@@ -1089,22 +1114,7 @@ def square_to_spherical_rectangle(u, ref_points, origin, edge1, edge2) -> np.nda
     if ref.shape[0] != u.shape[0]:
         raise ValueError(f"ref_points must have shape ({u.shape[0]}, 3) like u; got {ref.shape}")
     x, y, z, x0, x1, y0, y1, z0 = _rectangle_frame(ref, origin, edge1, edge2)
-    s, k, b0, b1 = _rectangle_solid_angle(x0, x1, y0, y1, z0)
-    phi = u[:, 0] * s + k
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fu = (np.cos(phi) * b0 - b1) / np.sin(phi)
-        cu = np.where(fu > 0.0, 1.0, -1.0) / np.sqrt(fu * fu + b0 * b0)
-        cu = np.clip(np.where(np.isfinite(fu), cu, 0.0), -1.0, 1.0)
-        xu = -(cu * z0) / np.maximum(np.sqrt(1.0 - cu * cu), 1e-300)
-    xu = np.clip(xu, x0, x1)
-    d2 = xu * xu + z0 * z0
-    h0 = y0 / np.sqrt(d2 + y0 * y0)
-    h1 = y1 / np.sqrt(d2 + y1 * y1)
-    hv = h0 + u[:, 1] * (h1 - h0)
-    hv2 = hv * hv
-    with np.errstate(divide="ignore", invalid="ignore"):
-        yv = np.where(hv2 < 1.0 - 1e-12, hv * np.sqrt(d2) / np.sqrt(np.maximum(1.0 - hv2, 1e-300)), y1)
-    yv = np.clip(yv, y0, y1)
+    xu, yv, _ = _spherical_rectangle_unchecked(u[:, 0], u[:, 1], x0, x1, y0, y1, z0)
     return ref + xu[:, None] * x + yv[:, None] * y + z0[:, None] * z
 
 
