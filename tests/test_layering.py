@@ -17,7 +17,7 @@ LAYERS = {
     "examples": 4,
     "scene": 4, "tracer": 4,
     "integrators": 5,
-    "experiments": 6,
+    "experiments": 6, "adaptive": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
 
