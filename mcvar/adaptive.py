@@ -40,12 +40,18 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 
 from ._validation import as_rng, check_choice, check_count
-from .integrators import HEURISTICS, PATHS_PER_BATCH, SAMPLER_DIM, Render, trace_paths
+from .integrators import HEURISTICS, PATHS_PER_BATCH, Render, trace_paths
 from .samplers import SAMPLERS, pixel_samples
 from .scene import Scene
 from .tracer import Tracer
 
 __all__ = ["render_adaptive", "allocate"]
+
+#: Sample dimensions the sampler feeds per path: the pixel position, then the
+#: first vertex's light and BSDF samples (later vertices iid). Feeding more
+#: vertices (padded Sobol' pairs) lowered the MSE of a 256-spp Cornell render
+#: by 4% for 13% more time (docs/performance.md): not worth it.
+ADAPTIVE_DIM = 6
 
 #: Light-transport integrators the adaptive driver can run.
 ADAPTIVE_INTEGRATORS = ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf")
@@ -108,7 +114,7 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
         _TRACERS[token] = tracer
     rng = np.random.default_rng(seed)
     m = pixels.shape[0]
-    dim = SAMPLER_DIM if sampler != "random" else 2
+    dim = ADAPTIVE_DIM if sampler != "random" else 2
     u = pixel_samples(sampler, m, n, dim=dim, rng=rng).reshape(m * n, dim)
     pixel = np.repeat(pixels, n)
     d = scene.camera.ray_directions_soa(res, pixel, u[:, 0:2]).T
@@ -119,11 +125,16 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
     return per.sum(axis=1), np.einsum("psc,psc->pc", per, per), rays
 
 
-def _jobs(levels_of_pixels):
-    """Cut each level's pixels into batches of at most PATHS_PER_BATCH paths."""
+#: Paths per pilot batch: smaller than the second stage's so that the pilot,
+#: a few spp over the whole image, still spreads over two or more workers.
+PILOT_PATHS_PER_BATCH = PATHS_PER_BATCH // 4
+
+
+def _jobs(levels_of_pixels, paths_per_batch=PATHS_PER_BATCH):
+    """Cut each level's pixels into batches of at most ``paths_per_batch`` paths."""
     out = []
     for n, pixels in levels_of_pixels:
-        per = max(1, PATHS_PER_BATCH // n)
+        per = max(1, paths_per_batch // n)
         for a in range(0, pixels.shape[0], per):
             out.append((pixels[a:a + per], n))
     return out
@@ -150,7 +161,11 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         The same seed gives the same image for any ``workers``.
     pilot_spp : int, optional
         Pilot samples per pixel (default ``max(4, spp // 32)``); they only
-        decide the allocation.
+        decide the allocation. 0: no pilot, every pixel gets ``spp``: the
+        uniform estimator of :func:`~mcvar.integrators.render`, rendered as
+        pixel tiles (each batch draws its own pixels' whole sample sets, so
+        no shared pattern is built in the parent and shipped to workers:
+        measured 1.7x with two workers where spp batches gave 1.0-1.2x).
     min_spp, max_spp : int, optional
         Bounds on the second stage's samples per pixel (default
         ``max(1, spp // 8)`` and ``64 spp``).
@@ -203,7 +218,12 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         size = (check_count(res[0], "res[0] (width)"), check_count(res[1], "res[1] (height)"))
     else:
         raise TypeError(f"res must be an int (square image) or a (width, height) pair; got {res!r}")
-    pilot = check_count(pilot_spp, "pilot_spp") if pilot_spp is not None else max(4, spp // 32)
+    if pilot_spp is None:
+        pilot = max(4, spp // 32)
+    elif isinstance(pilot_spp, (int, np.integer)) and not isinstance(pilot_spp, bool) and pilot_spp == 0:
+        pilot = 0
+    else:
+        pilot = check_count(pilot_spp, "pilot_spp")
     lo = check_count(min_spp, "min_spp") if min_spp is not None else max(1, spp // 8)
     hi = check_count(max_spp, "max_spp") if max_spp is not None else 64 * spp
     if exponent is None:
@@ -211,8 +231,9 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     exponent = float(exponent)
     if not 0.0 <= exponent <= 1.0:
         raise ValueError(f"exponent must be in [0, 1]; got {exponent}")
-    if pilot < 2:
-        raise ValueError(f"pilot_spp must be >= 2 (a variance needs two samples); got {pilot}")
+    if pilot == 1:
+        raise ValueError(f"pilot_spp must be 0 (no pilot: uniform spp) or >= 2 (a variance needs two "
+                         f"samples); got {pilot}")
     if pilot + lo > spp:
         raise ValueError(f"pilot_spp + min_spp must be <= spp; got {pilot} + {lo} > {spp}")
     if hi < lo:
@@ -249,7 +270,12 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         if executor is None:
             results = (_run_level(*common, px, n, s) for (px, n), s in zip(batches, seeds))
         else:
-            futures = [executor.submit(_run_level, *common, px, n, s) for (px, n), s in zip(batches, seeds)]
+            # largest batches first (the image does not depend on the order: seeds go by index)
+            order = sorted(range(len(batches)), key=lambda i: -batches[i][0].shape[0] * batches[i][1])
+            futures = [None] * len(batches)
+            for i in order:
+                (px, n), seed = batches[i], seeds[i]
+                futures[i] = executor.submit(_run_level, *common, px, n, seed)
             results = (f.result() for f in futures)
         out = []
         for (px, n), r in zip(batches, results):
@@ -264,20 +290,22 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     start = time.perf_counter()
     try:
         pilot_stream, main_stream = root.spawn(2)
-        all_pixels = np.arange(n_pix)
-        jobs = _jobs([(pilot, all_pixels)])
-        s = np.zeros((n_pix, 3))
-        sq = np.zeros((n_pix, 3))
         rays = 0
-        for (px, _), (a, b, r) in zip(jobs, run(jobs, pilot_stream)):
-            s[px], sq[px] = a, b
-            rays += r
-        var = np.maximum(sq - s * s / pilot, 0.0) / (pilot - 1)
-        sigma = np.sqrt(var.mean(axis=1)).reshape(h, w)
-        # a pixel next to a high-variance one may have missed what made it
-        # high (a light edge the pilot's few samples did not cross): dilate
-        sigma = maximum_filter(sigma, size=3, mode="nearest").reshape(-1)
-        counts = allocate(sigma, n_pix * (spp - pilot), min_spp=lo, max_spp=hi, exponent=exponent)
+        if pilot:
+            jobs = _jobs([(pilot, np.arange(n_pix))], PILOT_PATHS_PER_BATCH)
+            s = np.zeros((n_pix, 3))
+            sq = np.zeros((n_pix, 3))
+            for (px, _), (a, b, r) in zip(jobs, run(jobs, pilot_stream)):
+                s[px], sq[px] = a, b
+                rays += r
+            var = np.maximum(sq - s * s / pilot, 0.0) / (pilot - 1)
+            sigma = np.sqrt(var.mean(axis=1)).reshape(h, w)
+            # a pixel next to a high-variance one may have missed what made it
+            # high (a light edge the pilot's few samples did not cross): dilate
+            sigma = maximum_filter(sigma, size=3, mode="nearest").reshape(-1)
+            counts = allocate(sigma, n_pix * (spp - pilot), min_spp=lo, max_spp=hi, exponent=exponent)
+        else:
+            counts = np.full(n_pix, spp, dtype=np.int64)
         levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)]
         jobs = _jobs(levels)
         total = np.zeros((n_pix, 3))
