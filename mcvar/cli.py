@@ -53,15 +53,33 @@ def _cmd_render(args) -> int:
     from .scene import load_scene
 
     scene = load_scene(args.scene)
-    result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
-                    sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                    heuristic=args.heuristic, batch_spp=args.batch_spp,
-                    workers=args.workers, progress=not args.quiet)
+    if _adaptive_default(args):
+        from .adaptive import render_adaptive
+
+        # the most efficient unbiased configuration (docs/performance.md)
+        result = render_adaptive(scene, integrator=args.integrator, spp=args.spp, res=args.res,
+                                 sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
+                                 heuristic=args.heuristic, workers=args.workers, progress=not args.quiet)
+    else:
+        result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
+                        sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
+                        heuristic=args.heuristic, batch_spp=args.batch_spp,
+                        workers=args.workers, progress=not args.quiet)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
           f"{result.spp} spp in {result.seconds:.2f} s{note}")
     return 0
+
+
+def _adaptive_default(args) -> bool:
+    """``mcvar render`` renders adaptively (mcvar.adaptive) unless ``--uniform``,
+    a first-hit integrator, ``--batch-spp``, a square-only sampler or fewer
+    than 16 spp (the pilot would be too small to allocate by) say otherwise."""
+    from .adaptive import ADAPTIVE_INTEGRATORS
+
+    return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
+            and args.sampler not in ("grid", "jittered") and args.spp >= 16)
 
 
 def _cmd_converge(args) -> int:
@@ -80,6 +98,16 @@ def _cmd_demo(args) -> int:
     from .report import demo
 
     paths = demo(args.out, progress=not args.quiet)
+    if not args.no_best:
+        from .adaptive import render_adaptive
+        from .images import write_image
+        from .scene import load_scene
+
+        # the Cornell box once more, with the most efficient unbiased configuration
+        r = render_adaptive(load_scene("cornell"), spp=256, res=64, sampler="sobol", rng=1,
+                            progress=not args.quiet)
+        paths["best"] = write_image(Path(args.out) / "cornell-best.png", r.image)
+        print(f"cornell-best.png: 64x64, adaptive Sobol, {r.spp} spp on average in {r.seconds:.2f} s")
     for key, path in paths.items():
         print(f"{key}: {path}")
     return 0
@@ -115,13 +143,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
     p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
                                                           "direct_light, direct_bsdf, albedo, normal, depth, raster")
-    p.add_argument("--sampler", default="random", help="pixel sampler name from mcvar.samplers (default random)")
+    p.add_argument("--sampler", default="sobol", help="pixel sampler name from mcvar.samplers (default sobol; "
+                                                        "the previous default was random)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
     p.add_argument("--heuristic", default="power", help="MIS heuristic: power or balance")
     p.add_argument("--batch-spp", type=int, default=None, help="spp per batch (bounds memory)")
     p.add_argument("--workers", type=int, default=1, help="processes to spread spp batches over")
+    p.add_argument("--uniform", action="store_true",
+                   help="the same spp in every pixel (the previous behaviour); default for path/direct "
+                        "integrators at >= 16 spp: unbiased adaptive sampling (a pilot decides where "
+                        "the samples go, docs/performance.md)")
     p.add_argument("--out", type=Path, default=Path("out/render.png"), help=".npy, .png or .exr")
     p.set_defaults(func=_cmd_render)
 
@@ -157,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and 64 spp, 8 replicates, and write the convergence report "
                                    "(report.html, CSVs, PNGs). Re-running reuses finished runs.")
     p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
+    p.add_argument("--no-best", action="store_true",
+                   help="skip cornell-best.png (64x64, 256 spp, adaptive Sobol: the most efficient unbiased "
+                        "configuration, docs/performance.md); the previous behaviour")
     p.set_defaults(func=_cmd_demo)
     return parser
 
