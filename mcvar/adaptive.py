@@ -40,7 +40,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 
 from ._validation import as_rng, check_choice, check_count
-from .integrators import HEURISTICS, PATHS_PER_BATCH, Render, trace_paths
+from .integrators import HEURISTICS, LIGHT_SAMPLING, PATHS_PER_BATCH, Render, trace_paths
 from .samplers import SAMPLERS, pixel_samples
 from .scene import Scene
 from .tracer import Tracer
@@ -105,7 +105,8 @@ def allocate(sigma, budget: int, *, min_spp: int, max_spp: int, exponent: float 
 _TRACERS: dict = {}
 
 
-def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, precision, pixels, n, seed):
+def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, precision, light_sampling,
+               pixels, n, seed):
     """Render ``n`` samples of each pixel in ``pixels``: per-pixel (sum, sum of squares), rays."""
     tracer = _TRACERS.get(token)
     if tracer is None:
@@ -120,7 +121,7 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
     d = scene.camera.ray_directions_soa(res, pixel, u[:, 0:2]).T
     o = np.broadcast_to(scene.camera.position, d.shape)
     radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=integrator, max_depth=max_depth,
-                                 heuristic=heuristic, rng=rng, tracer=tracer)
+                                 heuristic=heuristic, rng=rng, tracer=tracer, light_sampling=light_sampling)
     per = radiance.reshape(m, n, 3)
     return per.sum(axis=1), np.einsum("psc,psc->pc", per, per), rays
 
@@ -144,7 +145,7 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
                     rng=None, pilot_spp: int | None = None, min_spp: int | None = None,
                     max_spp: int | None = None, exponent: float | None = None, max_depth: int | None = None, heuristic: str = "power",
                     workers: int = 1, executor=None, progress: bool | Callable[[int, int], None] = False,
-                    precision: str = "float32") -> Render:
+                    precision: str = "float32", light_sampling: str = "area") -> Render:
     """Render with the same total work as ``spp`` samples per pixel, spent where the pilot saw variance.
 
     Parameters
@@ -177,7 +178,7 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         pixel needs: the default there is 0.5 (measured on the Cornell box,
         64 x 64, 256 spp, Sobol': MSE 1.65e-5 uniform, 1.45e-5 at 0.7,
         1.20e-5 at 0.5, 1.22e-5 at 0.3; docs/performance.md).
-    max_depth, heuristic, precision
+    max_depth, heuristic, precision, light_sampling
         As for :func:`mcvar.integrators.render`.
     workers : int
         Local processes (``fork``) for the batches; ignored when
@@ -208,6 +209,7 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     sampler = check_choice(sampler, "sampler", tuple(SAMPLERS))
     heuristic = check_choice(heuristic, "heuristic", tuple(HEURISTICS))
     precision = check_choice(precision, "precision", ("float32", "float64"))
+    light_sampling = check_choice(light_sampling, "light_sampling", LIGHT_SAMPLING)
     spp = check_count(spp, "spp")
     if sampler in ("grid", "jittered"):
         raise ValueError(f"sampler {sampler!r} needs square sample counts; render_adaptive uses powers of two "
@@ -253,7 +255,7 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
 
         ctx = multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods() else None
         executor = own = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-    common = (token, scene, integrator, sampler, size, max_depth, heuristic, precision)
+    common = (token, scene, integrator, sampler, size, max_depth, heuristic, precision, light_sampling)
     total_paths = n_pix * spp
     bar = None
     if progress is True:

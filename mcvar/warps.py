@@ -1078,6 +1078,53 @@ def _spherical_rectangle_unchecked(u0, u1, x0, x1, y0, y1, z0):
     return xu, yv, s
 
 
+def _rectangle_soa_frame(edge1, edge2):
+    """``(x, y, z, l1, l2)`` of a rectangle light for the SoA kernels below:
+    unit edge directions and their cross product, each shape (3, 1), and the
+    edge lengths. Raises ValueError if the edges are not orthogonal."""
+    e1 = np.asarray(edge1, dtype=np.float64).reshape(3)
+    e2 = np.asarray(edge2, dtype=np.float64).reshape(3)
+    l1, l2 = float(np.linalg.norm(e1)), float(np.linalg.norm(e2))
+    if l1 <= 0.0 or l2 <= 0.0 or abs(float(e1 @ e2)) > 1e-9 * l1 * l2:
+        raise ValueError("solid-angle sampling needs a rectangle (non-zero, orthogonal edges); got edges "
+                         f"{e1.tolist()} and {e2.tolist()}")
+    x, y = e1 / l1, e2 / l2
+    return x[:, None], y[:, None], np.cross(x, y)[:, None], l1, l2
+
+
+def _rectangle_soa_local(p, origin, x, y, z):
+    """The rectangle's corner ``origin`` in the frame ``(x, y, z)`` centred at the SoA points ``p`` (3, m)."""
+    d = origin.reshape(3, 1) - p
+    x0 = x[0] * d[0] + x[1] * d[1] + x[2] * d[2]
+    y0 = y[0] * d[0] + y[1] * d[1] + y[2] * d[2]
+    z0 = z[0] * d[0] + z[1] * d[1] + z[2] * d[2]
+    return x0, y0, z0
+
+
+def _spherical_rectangle_soa(u0, u1, p, origin, x, y, z, l1, l2):
+    """:func:`square_to_spherical_rectangle` for structure-of-arrays shading points.
+
+    ``p`` (3, m), ``u0, u1`` (m,), the rectangle ``origin`` (3,) with the
+    frame of :func:`_rectangle_soa_frame`. Returns ``(w, dist, S)``: unit
+    directions (3, m) from ``p`` to the sampled points, their distances and
+    the solid angle ``S`` of the rectangle seen from ``p`` (the density is
+    ``1 / S``; 0 where the rectangle is seen edge-on)."""
+    x0, y0, z0 = _rectangle_soa_local(p, origin, x, y, z)
+    xu, yv, s = _spherical_rectangle_unchecked(u0, u1, x0, x0 + l1, y0, y0 + l2, -np.abs(z0))
+    w = x * xu
+    w += y * yv
+    w += z * z0
+    dist = np.sqrt(xu * xu + yv * yv + z0 * z0)
+    w /= np.maximum(dist, 1e-300)
+    return w, dist, s
+
+
+def _rectangle_solid_angle_soa(p, origin, x, y, z, l1, l2):
+    """Solid angle of the rectangle seen from the SoA points ``p`` (3, m)."""
+    x0, y0, z0 = _rectangle_soa_local(p, origin, x, y, z)
+    return _rectangle_solid_angle(x0, x0 + l1, y0, y0 + l2, -np.abs(z0))[0]
+
+
 def square_to_spherical_rectangle(u, ref_points, origin, edge1, edge2) -> np.ndarray:
     """Point on a rectangle, uniform in the solid angle it subtends at ``ref_points``, shape (n, 3).
 
