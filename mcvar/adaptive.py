@@ -31,6 +31,7 @@ spawned in a fixed order, so the image does not depend on ``workers``.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import time
 import uuid
 from concurrent.futures import ProcessPoolExecutor
@@ -45,7 +46,7 @@ from .samplers import SAMPLERS, pixel_samples
 from .scene import Scene
 from .tracer import Tracer
 
-__all__ = ["render_adaptive", "allocate"]
+__all__ = ["render_adaptive", "allocate", "AdaptiveRender"]
 
 #: Sample dimensions the sampler feeds per path: the pixel position, then the
 #: first vertex's light and BSDF samples (later vertices iid). Feeding more
@@ -55,6 +56,16 @@ ADAPTIVE_DIM = 6
 
 #: Light-transport integrators the adaptive driver can run.
 ADAPTIVE_INTEGRATORS = ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf")
+
+
+@dataclass(frozen=True, eq=False)
+class AdaptiveRender(Render):
+    """A :class:`~mcvar.integrators.Render` of :func:`render_adaptive`, with
+    ``spp_map`` (H, W): the second stage's samples per pixel, and
+    ``pilot_spp``: the pilot's (0: none)."""
+
+    spp_map: np.ndarray | None = None
+    pilot_spp: int = 0
 
 
 def allocate(sigma, budget: int, *, min_spp: int, max_spp: int, exponent: float = 1.0) -> np.ndarray:
@@ -195,13 +206,16 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         samples per pixel spent (pilot included); ``variance`` is scaled so
         that ``variance / spp`` is each pixel's variance of the mean
         (``s_i^2 / n_i``): :attr:`Render.standard_error` stays per pixel.
-        ``extra['spp']`` (when :class:`Render` has ``extra``) holds the
-        second stage's samples per pixel, (H, W).
+        An :class:`AdaptiveRender`: ``spp_map`` holds the second stage's
+        samples per pixel, (H, W).
 
     Notes
     -----
     Unbiased: see the module docstring (the pilot's samples are not in the
-    image). Ctrl-C is not caught here: an adaptive render is all or nothing.
+    image). Ctrl-C (``KeyboardInterrupt``, also from a ``progress``
+    callback) returns ``interrupted=True`` with the finished batches; pixels
+    whose second stage did not finish show their pilot mean (still unbiased:
+    which pixels finished depends on timing, not on sample values).
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
@@ -265,10 +279,12 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     callback = progress if callable(progress) else None
     done_paths = 0
 
-    def run(batches, stream):
-        """Run (pixels, n) batches with seeds spawned from ``stream``; in order."""
+    def run(batches, stream, sink):
+        """Run (pixels, n) batches with seeds spawned from ``stream``; ``sink(pixels, result)``
+        for each, in batch order (a Ctrl-C leaves the finished ones sunk)."""
         nonlocal done_paths
         seeds = stream.spawn(len(batches))
+        futures = []
         if executor is None:
             results = (_run_level(*common, px, n, s) for (px, n), s in zip(batches, seeds))
         else:
@@ -279,62 +295,77 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
                 (px, n), seed = batches[i], seeds[i]
                 futures[i] = executor.submit(_run_level, *common, px, n, seed)
             results = (f.result() for f in futures)
-        out = []
-        for (px, n), r in zip(batches, results):
-            out.append(r)
-            done_paths += px.shape[0] * n
-            if bar is not None:
-                bar.update(px.shape[0] * n)
-            if callback is not None:
-                callback(done_paths, total_paths)
-        return out
+        try:
+            for (px, n), r in zip(batches, results):
+                sink(px, r)
+                done_paths += px.shape[0] * n
+                if bar is not None:
+                    bar.update(px.shape[0] * n)
+                if callback is not None:
+                    callback(done_paths, total_paths)
+        finally:
+            for f in futures:             # never leave a render's batches running
+                f.cancel()
+
+    s = np.zeros((n_pix, 3))
+    sq = np.zeros((n_pix, 3))
+    total = np.zeros((n_pix, 3))
+    total_sq = np.zeros((n_pix, 3))
+    pilot_done = np.zeros(n_pix, dtype=bool)
+    done = np.zeros(n_pix, dtype=bool)
+    counts = np.full(n_pix, spp, dtype=np.int64)
+    rays = 0
+    interrupted = False
+
+    def pilot_sink(px, r):
+        nonlocal rays
+        s[px], sq[px] = r[0], r[1]
+        rays += r[2]
+        pilot_done[px] = True
+
+    def main_sink(px, r):
+        nonlocal rays
+        total[px], total_sq[px] = r[0], r[1]
+        rays += r[2]
+        done[px] = True
 
     start = time.perf_counter()
     try:
         pilot_stream, main_stream = root.spawn(2)
-        rays = 0
         if pilot:
-            jobs = _jobs([(pilot, np.arange(n_pix))], PILOT_PATHS_PER_BATCH)
-            s = np.zeros((n_pix, 3))
-            sq = np.zeros((n_pix, 3))
-            for (px, _), (a, b, r) in zip(jobs, run(jobs, pilot_stream)):
-                s[px], sq[px] = a, b
-                rays += r
+            run(_jobs([(pilot, np.arange(n_pix))], PILOT_PATHS_PER_BATCH), pilot_stream, pilot_sink)
             var = np.maximum(sq - s * s / pilot, 0.0) / (pilot - 1)
             sigma = np.sqrt(var.mean(axis=1)).reshape(h, w)
             # a pixel next to a high-variance one may have missed what made it
             # high (a light edge the pilot's few samples did not cross): dilate
             sigma = maximum_filter(sigma, size=3, mode="nearest").reshape(-1)
             counts = allocate(sigma, n_pix * (spp - pilot), min_spp=lo, max_spp=hi, exponent=exponent)
-        else:
-            counts = np.full(n_pix, spp, dtype=np.int64)
         levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)]
-        jobs = _jobs(levels)
-        total = np.zeros((n_pix, 3))
-        total_sq = np.zeros((n_pix, 3))
-        for (px, _), (a, b, r) in zip(jobs, run(jobs, main_stream)):
-            total[px], total_sq[px] = a, b
-            rays += r
+        run(_jobs(levels), main_stream, main_sink)
+    except KeyboardInterrupt:
+        # Pixels whose second-stage batch did not finish fall back to their
+        # pilot mean (or 0 without one): which pixels did depends on timing,
+        # not on sample values, so every pixel's estimate stays unbiased.
+        interrupted = True
+        back = ~done & pilot_done
+        total[back], total_sq[back] = s[back], sq[back]
+        counts = np.where(done, counts, np.where(pilot_done, pilot, 0))
     finally:
         if own is not None:
-            own.shutdown(wait=True, cancel_futures=True)
+            own.shutdown(wait=not interrupted, cancel_futures=True)
         _TRACERS.pop(token, None)
         if bar is not None:
             bar.close()
     seconds = time.perf_counter() - start
-    n_i = counts[:, None].astype(np.float64)
+    n_i = np.maximum(counts[:, None], 1).astype(np.float64)
     image = total / n_i
-    spent = int(round((n_pix * pilot + counts.sum()) / n_pix))
+    spent = max(1, int(round((n_pix * pilot * pilot_done.mean() + counts[done].sum()) / n_pix)))
     with np.errstate(invalid="ignore", divide="ignore"):
         var_i = np.where(n_i > 1, np.maximum(total_sq - total * total / n_i, 0.0) / np.maximum(n_i - 1, 1), 0.0)
     variance = var_i * (spent / n_i)          # variance / spp = s_i^2 / n_i
     fields = {f.name for f in dataclasses.fields(Render)}
-    kw = dict(image=image.reshape(h, w, 3), spp=spent, seconds=seconds, interrupted=False,
+    kw = dict(image=image.reshape(h, w, 3), spp=spent, seconds=seconds, interrupted=interrupted,
               variance=variance.reshape(h, w, 3), rays=rays, scene=scene.name, integrator=integrator,
               sampler=sampler, res=size, max_depth=max_depth, heuristic=heuristic, batch_spp=int(counts.max()),
-              workers=workers, precision=precision)
-    if "options" in fields:
-        kw["options"] = {"adaptive": True, "pilot_spp": pilot, "min_spp": lo, "max_spp": hi}
-    if "extra" in fields:
-        kw["extra"] = {"spp": counts.reshape(h, w)}
-    return Render(**{k: v for k, v in kw.items() if k in fields})
+              workers=workers, precision=precision, spp_map=counts.reshape(h, w), pilot_spp=pilot)
+    return AdaptiveRender(**{k: v for k, v in kw.items() if k in fields or k in ("spp_map", "pilot_spp")})

@@ -70,7 +70,7 @@ def test_samples_go_to_the_light_edge(cornell):
     noisiest, and the adaptive image beats uniform random sampling's MSE
     against a shared higher-spp image by more than their noise."""
     a = render_adaptive(cornell, spp=64, res=16, sampler="random", rng=SEED)
-    counts = a.extra["spp"]
+    counts = a.spp_map
     p = render(cornell, integrator="path", spp=64, res=16, sampler="random", rng=SEED + 1)
     noisy = p.variance.mean(axis=2) > np.quantile(p.variance.mean(axis=2), 0.95)
     assert counts[noisy].mean() > 4 * counts[~noisy].mean()
@@ -97,3 +97,23 @@ def test_same_seed_same_image_any_workers(cornell):
 def test_bad_input(cornell, kw, match):
     with pytest.raises(ValueError, match=match):
         render_adaptive(cornell, **{"res": 4, **kw})
+
+
+def test_ctrl_c_keeps_finished_batches_and_falls_back_to_the_pilot(cornell):
+    """A KeyboardInterrupt from the progress callback half way through the
+    second stage: finished pixels are those of the full render (same seed),
+    the others show their pilot mean (spp_map = pilot_spp)."""
+    full = render_adaptive(cornell, spp=64, res=16, rng=SEED, pilot_spp=4)
+    total = 16 * 16 * 64
+
+    def stop(done, _):
+        if done > total // 2:
+            raise KeyboardInterrupt
+
+    part = render_adaptive(cornell, spp=64, res=16, rng=SEED, pilot_spp=4, progress=stop)
+    assert part.interrupted and not full.interrupted
+    finished = part.spp_map >= 8                     # min_spp = 64 // 8 > pilot_spp
+    assert 0 < finished.sum() < finished.size
+    assert np.array_equal(part.image[finished], full.image[finished])
+    assert np.all(part.spp_map[~finished] == 4)
+    assert np.all(np.isfinite(part.image)) and part.image[~finished].mean() > 0
