@@ -54,6 +54,12 @@ __all__ = ["render_adaptive", "allocate", "AdaptiveRender"]
 #: by 4% for 13% more time (docs/performance.md): not worth it.
 ADAPTIVE_DIM = 6
 
+#: Russian roulette start of adaptive renders: on the Cornell box, roulette
+#: from 3 segments on (the integrators' default) puts a large share of the
+#: MSE into the indirect light; starting later costs a little more time and
+#: saves more variance (docs/performance.md).
+ADAPTIVE_RR_DEPTH = 7
+
 #: Light-transport integrators the adaptive driver can run.
 ADAPTIVE_INTEGRATORS = ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf")
 
@@ -117,7 +123,7 @@ _TRACERS: dict = {}
 
 
 def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, precision, light_sampling,
-               pixels, n, seed):
+               rr_depth, pixels, n, seed):
     """Render ``n`` samples of each pixel in ``pixels``: per-pixel (sum, sum of squares), rays."""
     tracer = _TRACERS.get(token)
     if tracer is None:
@@ -132,7 +138,8 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
     d = scene.camera.ray_directions_soa(res, pixel, u[:, 0:2]).T
     o = np.broadcast_to(scene.camera.position, d.shape)
     radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=integrator, max_depth=max_depth,
-                                 heuristic=heuristic, rng=rng, tracer=tracer, light_sampling=light_sampling)
+                                 heuristic=heuristic, rng=rng, tracer=tracer, light_sampling=light_sampling,
+                                 rr_depth=rr_depth)
     per = radiance.reshape(m, n, 3)
     return per.sum(axis=1), np.einsum("psc,psc->pc", per, per), rays
 
@@ -156,7 +163,8 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
                     rng=None, pilot_spp: int | None = None, min_spp: int | None = None,
                     max_spp: int | None = None, exponent: float | None = None, max_depth: int | None = None, heuristic: str = "power",
                     workers: int = 1, executor=None, progress: bool | Callable[[int, int], None] = False,
-                    precision: str = "float32", light_sampling: str = "area") -> Render:
+                    precision: str = "float32", light_sampling: str = "area",
+                    rr_depth: int | None = ADAPTIVE_RR_DEPTH) -> Render:
     """Render with the same total work as ``spp`` samples per pixel, spent where the pilot saw variance.
 
     Parameters
@@ -191,6 +199,10 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         1.20e-5 at 0.5, 1.22e-5 at 0.3; docs/performance.md).
     max_depth, heuristic, precision, light_sampling
         As for :func:`mcvar.integrators.render`.
+    rr_depth : int or None
+        Path segments before Russian roulette starts (None: the integrators'
+        :data:`~mcvar.integrators.RR_START_DEPTH`); default
+        :data:`ADAPTIVE_RR_DEPTH`.
     workers : int
         Local processes (``fork``) for the batches; ignored when
         ``executor`` is given.
@@ -224,6 +236,8 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     heuristic = check_choice(heuristic, "heuristic", tuple(HEURISTICS))
     precision = check_choice(precision, "precision", ("float32", "float64"))
     light_sampling = check_choice(light_sampling, "light_sampling", LIGHT_SAMPLING)
+    if rr_depth is not None:
+        rr_depth = check_count(rr_depth, "rr_depth")
     spp = check_count(spp, "spp")
     if sampler in ("grid", "jittered"):
         raise ValueError(f"sampler {sampler!r} needs square sample counts; render_adaptive uses powers of two "
@@ -269,7 +283,8 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
 
         ctx = multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods() else None
         executor = own = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-    common = (token, scene, integrator, sampler, size, max_depth, heuristic, precision, light_sampling)
+    common = (token, scene, integrator, sampler, size, max_depth, heuristic, precision, light_sampling,
+              rr_depth)
     total_paths = n_pix * spp
     bar = None
     if progress is True:

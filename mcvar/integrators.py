@@ -414,7 +414,7 @@ class _Wavefront:
 
 def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path",
                 max_depth: int | None = None, heuristic: str = "power", rng=None,
-                tracer: Tracer | None = None, light_sampling: str = "area"):
+                tracer: Tracer | None = None, light_sampling: str = "area", rr_depth: int | None = None):
     """Radiance carried back along each camera ray: the wavefront core of :func:`render`.
 
     Parameters
@@ -437,6 +437,10 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
     light_sampling : {'area', 'solid_angle'}
         How NEE samples quad lights (:data:`LIGHT_SAMPLING`); the MIS weight
         of a light hit by BSDF sampling uses the same density.
+    rr_depth : int, optional
+        Russian roulette starts once a path has this many segments (default
+        :data:`RR_START_DEPTH`); any value is unbiased, later is more work
+        and less variance.
 
     Returns
     -------
@@ -473,6 +477,7 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
     check_choice(integrator, "integrator", tuple(_MODES))
     check_choice(heuristic, "heuristic", tuple(HEURISTICS))
     rng = as_rng(rng)
+    rr_start = RR_START_DEPTH if rr_depth is None else check_count(rr_depth, "rr_depth")
     nee, bsdf_hits, mis = _MODES[integrator]
     if integrator.startswith("direct"):
         max_depth = 2
@@ -484,7 +489,8 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
     u = np.asarray(u, dtype=np.float64)
     limit = RR_MAX_DEPTH if max_depth is None else max_depth
     if wf.lambertian and _LAMBERTIAN_FAST:
-        return _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, max_depth is None,
+        return _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit,
+                                 rr_start if max_depth is None else None,
                                  nee, bsdf_hits, mis, weight_fn)
     o = np.array(np.asarray(origins, dtype=np.float64).T, order="C")
     d = np.array(np.asarray(directions, dtype=np.float64).T, order="C")
@@ -562,7 +568,7 @@ def trace_paths(scene: Scene, origins, directions, u, *, integrator: str = "path
         wi += ft * wi_l[2]
         bmax = beta.max(axis=0)
         alive = bmax > 0.0
-        if max_depth is None and k >= RR_START_DEPTH:
+        if max_depth is None and k >= rr_start:
             q = np.minimum(bmax, 0.95)
             survive = rng.random(m) < q
             beta /= np.where(survive, q, 1.0)
@@ -663,7 +669,7 @@ def _trace_lambertian(sh, wf, tracer, origins, directions, u, rng, limit, roulet
         wi += ft * z
         bmax = beta.max(axis=0)
         alive = bmax > 0.0
-        if roulette and k >= RR_START_DEPTH:
+        if roulette is not None and k >= roulette:
             q = np.minimum(bmax, 0.95)
             survive = rng.random(m) < q
             beta /= np.where(survive, q, 1.0)
@@ -886,6 +892,7 @@ class _Job:
     precision: str
     token: str = ""
     light_sampling: str = "area"
+    rr_depth: int | None = None
 
 
 #: The tracer of the render in progress, by job token: built once per render
@@ -961,7 +968,8 @@ def _render_batch(job: _Job, spp: int, rng, u=None):
     else:
         radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=job.integrator,
                                      max_depth=job.max_depth, heuristic=job.heuristic,
-                                     rng=rng, tracer=tracer, light_sampling=job.light_sampling)
+                                     rng=rng, tracer=tracer, light_sampling=job.light_sampling,
+                                     rr_depth=job.rr_depth)
     if not np.all(np.isfinite(radiance)):
         raise FloatingPointError(f"{job.integrator} produced non-finite radiance (a bug, please report)")
     per_pixel = radiance.reshape(n_pix, spp, 3)
@@ -1020,7 +1028,8 @@ def _sample_slices(sampler: str, n_pix: int, spp: int, sizes, dim: int, rng):
 def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sampler: str = "random",
            rng=None, max_depth: int | None = None, heuristic: str = "power", batch_spp: int | None = None,
            workers: int = 1, progress: bool | Callable[[int, int], None] = False,
-           precision: Literal["float32", "float64"] = "float32", light_sampling: str = "area") -> Render:
+           precision: Literal["float32", "float64"] = "float32", light_sampling: str = "area",
+           rr_depth: int | None = None) -> Render:
     """Render ``scene`` with one integrator: the mean radiance of ``spp`` samples per pixel.
 
     Parameters
@@ -1068,6 +1077,9 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
         How next-event estimation samples quad lights (:data:`LIGHT_SAMPLING`;
         'solid_angle' needs rectangular lights). Measured on the Cornell box
         (docs/performance.md): no lower MSE at 256 spp, 27% more time.
+    rr_depth : int, optional
+        Path segments before Russian roulette starts (default
+        :data:`RR_START_DEPTH`; unbiased for any value).
 
     Returns
     -------
@@ -1103,6 +1115,8 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
     spp = check_count(spp, "spp")
     size = _as_res(res)
     workers = check_count(workers, "workers")
+    if rr_depth is not None:
+        rr_depth = check_count(rr_depth, "rr_depth")
     if max_depth is not None:
         max_depth = check_count(max_depth, "max_depth")
         if integrator.startswith("direct") and max_depth != 2:
@@ -1118,7 +1132,7 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
     slices = _sample_slices(sampler, n_pix, spp, sizes, 2 if integrator in _AOVS else SAMPLER_DIM,
                             streams.pop())
     job = _Job(scene, integrator, sampler, size, max_depth, heuristic, precision, token=uuid.uuid4().hex,
-               light_sampling=light_sampling)
+               light_sampling=light_sampling, rr_depth=rr_depth)
     _job_tracer(job)
 
     total = np.zeros((n_pix, 3))
