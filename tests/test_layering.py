@@ -30,7 +30,8 @@ PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "runs", "reference", "analysis", "sweeps", "__init__"],
     "testing": ["_domains", "_chi2", "mutants", "__init__"],
-    "integrators": None,  # filled when mcvar/integrators/ becomes a package (issue 10)
+    "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position",
+                    "driver", "__init__"],
 }
 
 

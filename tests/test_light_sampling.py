@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from mcvar import warps
-from mcvar.integrators import _Shading, _Wavefront, render
+from mcvar.integrators import Emitters, render
 from mcvar.scene import load_scene
 from mcvar.testing import chi2_test
-from mcvar.tracer import Tracer
 
 SEED = 1412
 
@@ -18,12 +17,6 @@ SEED = 1412
 @pytest.fixture(scope="module")
 def cornell():
     return load_scene("cornell")
-
-
-def _shading(scene, mode):
-    tracer = Tracer(scene)
-    sh = _Shading(scene, tracer, mode)
-    return sh, _Wavefront(scene, tracer, sh)
 
 
 def _points_in_box(n, rng):
@@ -36,7 +29,7 @@ def test_soa_sampler_chi2_against_its_pdf(cornell, ref):
     """NEE's sampler as a map onto the light's own (s, t) square, against its
     density there: ``pdf_w cos(theta_l) / r^2 * area`` (the support is the
     whole square; three shading points, Sidak-corrected)."""
-    sh, _ = _shading(cornell, "solid_angle")
+    em = Emitters(cornell, "solid_angle")
     o, e1, e2 = cornell.light_origin[0], cornell.light_edge1[0], cornell.light_edge2[0]
     n_l = cornell.light_normal[0]
     area = float(cornell.light_area[0])
@@ -44,7 +37,7 @@ def test_soa_sampler_chi2_against_its_pdf(cornell, ref):
 
     def sample(u):
         p = np.broadcast_to(ref[:, None], (3, len(u)))
-        w, dist, pdf = sh.rect_sample(0, np.ascontiguousarray(p), u[:, 0], u[:, 1])
+        w, dist, _, _, _ = em.sample_li(np.ascontiguousarray(p), np.ascontiguousarray(u.T), None)
         x = ref + (w * dist).T
         return warps.uniform_parallelogram_to_square(x, o, e1, e2)
 
@@ -54,7 +47,7 @@ def test_soa_sampler_chi2_against_its_pdf(cornell, ref):
         r2 = np.einsum("ij,ij->i", d, d)
         cos_l = np.abs(d @ n_l) / np.sqrt(r2)
         p = np.ascontiguousarray(np.broadcast_to(ref[:, None], (3, len(st))))
-        return sh.rect_pdf(0, p) * cos_l / r2 * area
+        return em._rect_pdf(0, p) * cos_l / r2 * area
 
     res = chi2_test(sample, pdf, "square", n=200_000, rng=SEED, bins=(30, 30), test_count=3)
     assert res.passed, res
@@ -64,19 +57,19 @@ def test_soa_sampler_chi2_against_its_pdf(cornell, ref):
 def test_nee_pdf_is_the_pdf_of_hitting_the_same_light_point(cornell, mode):
     """The density NEE hands to the MIS weight equals the density the
     BSDF-sampled hit of the same light point is weighted with
-    (``light_pdf_hit``): the check that catches an area pdf in a solid-angle
+    (``Emitters.pdf_li``): the check that catches an area pdf in a solid-angle
     MIS weight (issue 10's planted bug), for both sampling modes."""
     rng = np.random.default_rng(SEED)
-    sh, wf = _shading(cornell, mode)
+    em = Emitters(cornell, mode)
     p = _points_in_box(5000, rng)
     u = rng.random((2, 5000))
-    w, dist, le, pdf, _ = wf.sample_light(sh, np.ascontiguousarray(p.T), u)
+    w, dist, le, pdf, _ = em.sample_li(np.ascontiguousarray(p.T), u, None)
     x = p + (w * dist).T
     on = warps.square_to_uniform_parallelogram_pdf(x, cornell.light_origin[0], cornell.light_edge1[0],
                                                    cornell.light_edge2[0]) > 0
     assert on.all() and (pdf > 0).all()
     light_prim = int(np.flatnonzero(cornell.prim_light >= 0)[0])
-    hit = sh.light_pdf_hit(np.full(5000, light_prim), p, x)
+    hit = em.pdf_li(np.full(5000, light_prim), p, x)
     np.testing.assert_allclose(pdf, hit, rtol=1e-9)
     if mode == "solid_angle":        # and it is 1 / S, S the light's solid angle
         s = 1.0 / warps.square_to_spherical_rectangle_pdf(x[:3], p[:3], cornell.light_origin[0],
