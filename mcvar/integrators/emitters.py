@@ -155,11 +155,18 @@ class Emitters:
             n_l = np.take(self.normal_soa, li, axis=1)
             pa = np.take(self.pdf_area, li)
             le = np.take(self.radiance_soa, li, axis=1)
-        v = x - p
-        d2 = _dot(v, v)
+        x -= p                                  # x is ours: the vector to the light
+        d2 = _dot(x, x)
         r = np.sqrt(d2)
-        w = v / np.maximum(r, 1e-300)
-        cos_l = -_dot(np.broadcast_to(n_l, w.shape), w)
+        w = x
+        w /= np.maximum(r, 1e-300)
+        if li is None:
+            n = n_l[:, 0]
+            cos_l = w[0] * -n[0]
+            cos_l -= w[1] * n[1]
+            cos_l -= w[2] * n[2]
+        else:
+            cos_l = -_dot(n_l, w)
         front = cos_l > 0.0
         # area density to solid angle (area_to_solid_angle_pdf's formula): p_A r^2 / cos_l
         with np.errstate(divide="ignore", invalid="ignore"):
