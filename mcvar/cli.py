@@ -106,6 +106,7 @@ def _cmd_demo(args) -> int:
         # the Cornell box once more, with the most efficient unbiased configuration
         r = render_adaptive(load_scene("cornell"), spp=256, res=64, sampler="sobol", rng=1,
                             progress=not args.quiet)
+        Path(args.out).mkdir(parents=True, exist_ok=True)
         paths["best"] = write_image(Path(args.out) / "cornell-best.png", r.image)
         print(f"cornell-best.png: 64x64, adaptive Sobol, {r.spp} spp on average in {r.seconds:.2f} s")
     for key, path in paths.items():

@@ -27,3 +27,17 @@ def test_render_default_is_adaptive_sobol_and_uniform_is_the_previous_default(tm
                  "--out", str(out3)]) == 0
     assert np.array_equal(np.load(out3), render(scene, spp=4, res=8, sampler="sobol", rng=3).image.astype(np.float32))
     capsys.readouterr()
+
+
+def test_demo_adds_the_best_configuration_image(tmp_path, monkeypatch, capsys):
+    """``mcvar demo`` writes cornell-best.png (adaptive Sobol) after its report;
+    ``--no-best`` is the previous behaviour (the report alone). The report
+    itself is replaced by a stub here: it has its own tests."""
+    import mcvar.report
+
+    monkeypatch.setattr(mcvar.report, "demo", lambda out, progress=True: {})
+    assert main(["demo", "--out", str(tmp_path / "a"), "--quiet", "--no-best"]) == 0
+    assert not (tmp_path / "a" / "cornell-best.png").exists()
+    assert main(["demo", "--out", str(tmp_path / "b"), "--quiet"]) == 0
+    assert (tmp_path / "b" / "cornell-best.png").stat().st_size > 0
+    assert "adaptive Sobol" in capsys.readouterr().out
