@@ -88,9 +88,10 @@ def main(argv=None):
     ap.add_argument("--spp", type=int, default=256)
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--ref-spp", type=int, default=16384)
-    ap.add_argument("--only", default="", help="comma-separated substrings of configuration names")
+    ap.add_argument("--only", default="", help="semicolon-separated substrings of configuration names")
     ap.add_argument("--frontier", action="store_true",
                     help="MSE against seconds at several spp per configuration; saves docs/performance-frontier.png")
+    ap.add_argument("--spps", default="32,64,128,256,512", help="spp levels of --frontier")
     args = ap.parse_args(argv)
     runs = 2 if args.quick else args.runs
     ref_spp = 2048 if args.quick else args.ref_spp
@@ -98,7 +99,7 @@ def main(argv=None):
     ref, ref_var = reference(scene, args.res, ref_spp, Path(".mcvar-cache"))
     floor = float(ref_var.mean())
     configs = {k: v for k, v in CONFIGS.items()
-               if not args.only or any(s in k for s in args.only.split(","))}
+               if not args.only or any(s in k for s in args.only.split(";"))}
     load0 = os.getloadavg()
     print(f"load average {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f} on {os.cpu_count()} CPUs (a shared "
           f"machine: absolute seconds are loaded-machine figures; ratios within one run are what count); "
@@ -106,7 +107,7 @@ def main(argv=None):
     for kw in configs.values():                       # warm-up (pools, caches)
         run(scene, spp=16, res=16, rng=0, **kw)
     if args.frontier:
-        frontier(scene, configs, ref, floor, args.res, runs)
+        frontier(scene, configs, ref, floor, args.res, runs, tuple(int(x) for x in args.spps.split(",")))
         return
     secs = {k: [] for k in configs}
     errs = {k: [] for k in configs}
@@ -140,7 +141,7 @@ def main(argv=None):
               f"ratio {LLVM_BEST / rows[best]:.2f}")
 
 
-def frontier(scene, configs, ref, floor, res, runs, spps=(32, 64, 128, 256, 512)):
+def frontier(scene, configs, ref, floor, res, runs, spps):
     """Median seconds and mean MSE per configuration and spp (interleaved), plotted log-log."""
     import matplotlib
 
@@ -166,8 +167,8 @@ def frontier(scene, configs, ref, floor, res, runs, spps=(32, 64, 128, 256, 512)
         ax.loglog(tt, c / tt, ":", color="0.7", lw=0.8)
     ax.set_xlabel("seconds (median, shared machine)")
     ax.set_ylabel("MSE against the 16384-spp reference")
-    ax.set_title(f"Cornell box {res}x{res}, {spps[0]}-{spps[-1]} spp; dotted: MSE x time = 1e-6, 1e-5, 1e-4 s",
-                 fontsize=8)
+    ax.set_title(f"Cornell box {res}x{res}, {spps[0]}-{spps[-1]} spp, shared machine (load average "
+                 f"{os.getloadavg()[0]:.1f}); dotted: MSE x time = 1e-6, 1e-5, 1e-4 s", fontsize=8)
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = Path(__file__).resolve().parents[1] / "docs" / "performance-frontier.png"
