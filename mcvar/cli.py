@@ -61,10 +61,18 @@ def _cmd_render(args) -> int:
                              f"it needs --integrator bdpt, not {args.integrator!r}")
         options["strategies"] = True
     scene = load_scene(args.scene)
-    result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
-                    sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                    heuristic=args.heuristic, batch_spp=args.batch_spp,
-                    workers=args.workers, progress=not args.quiet, **options)
+    if _adaptive_default(args):
+        from .adaptive import render_adaptive
+
+        # the most efficient unbiased configuration (docs/performance.md)
+        result = render_adaptive(scene, integrator=args.integrator, spp=args.spp, res=args.res,
+                                 sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
+                                 heuristic=args.heuristic, workers=args.workers, progress=not args.quiet)
+    else:
+        result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
+                        sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
+                        heuristic=args.heuristic, batch_spp=args.batch_spp,
+                        workers=args.workers, progress=not args.quiet, **options)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
@@ -75,6 +83,16 @@ def _cmd_render(args) -> int:
         written = write_strategies(args.strategies, strategies_from_extra(result.extra, result.res), result.res)
         print(f"wrote {len(written) - 1} strategy images (s{{s}}_t{{t}}.npy) and {written[-1]}")
     return 0
+
+
+def _adaptive_default(args) -> bool:
+    """``mcvar render`` renders adaptively (mcvar.adaptive) unless ``--uniform``,
+    a first-hit integrator, ``--batch-spp``, a square-only sampler or fewer
+    than 16 spp (the pilot would be too small to allocate by) say otherwise."""
+    from .adaptive import ADAPTIVE_INTEGRATORS
+
+    return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
+            and args.sampler not in ("grid", "jittered") and args.spp >= 16)
 
 
 def _cmd_converge(args) -> int:
@@ -102,6 +120,17 @@ def _cmd_demo(args) -> int:
     from .report import demo
 
     paths = demo(args.out, progress=not args.quiet)
+    if not args.no_best:
+        from .adaptive import render_adaptive
+        from .images import write_image
+        from .scene import load_scene
+
+        # the Cornell box once more, with the most efficient unbiased configuration
+        r = render_adaptive(load_scene("cornell"), spp=256, res=64, sampler="sobol", rng=1,
+                            progress=not args.quiet)
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        paths["best"] = write_image(Path(args.out) / "cornell-best.png", r.image)
+        print(f"cornell-best.png: 64x64, adaptive Sobol, {r.spp} spp on average in {r.seconds:.2f} s")
     for key, path in paths.items():
         print(f"{key}: {path}")
     return 0
@@ -149,7 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
                                                           "direct_light, direct_bsdf, albedo, normal, depth, raster, "
                                                           "position: any method of mcvar.integrators.METHODS")
-    p.add_argument("--sampler", default="random", help="pixel sampler name from mcvar.samplers (default random)")
+    p.add_argument("--sampler", default="sobol", help="pixel sampler name from mcvar.samplers (default sobol; "
+                                                        "the previous default was random)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
@@ -159,6 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--strategies", type=Path, default=None, metavar="DIR",
                    help="with --integrator bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
                         "to DIR (s{s}_t{t}.npy, linear) and their grid (strategies.png)")
+    p.add_argument("--uniform", action="store_true",
+                   help="the same spp in every pixel (the previous behaviour); default for path/direct "
+                        "integrators at >= 16 spp: unbiased adaptive sampling (a pilot decides where "
+                        "the samples go, docs/performance.md)")
     p.add_argument("--out", type=Path, default=Path("out/render.png"), help=".npy, .png or .exr")
     p.set_defaults(func=_cmd_render)
 
@@ -199,6 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and 64 spp, 6 replicates, and write the convergence report "
                                    "(report.html, CSVs, PNGs). Re-running reuses finished runs.")
     p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
+    p.add_argument("--no-best", action="store_true",
+                   help="skip cornell-best.png (64x64, 256 spp, adaptive Sobol: the most efficient unbiased "
+                        "configuration, docs/performance.md); the previous behaviour")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("chart", parents=[quiet], help="the lecture's rendering-methods chart, measured",

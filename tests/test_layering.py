@@ -18,7 +18,7 @@ LAYERS = {
     "scene": 4, "tracer": 4,
     "mcmc": 4,
     "integrators": 5,
-    "experiments": 6,
+    "experiments": 6, "adaptive": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "chart_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
 

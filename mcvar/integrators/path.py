@@ -40,14 +40,15 @@ from functools import partial
 
 import numpy as np
 
-from .._validation import as_rng, check_choice
+from .._validation import as_rng, check_choice, check_count
 from ..estimators import balance_heuristic, power_heuristic
 from ..tracer import Tracer
 from .emitters import Emitters
 from .film import BatchJob, BatchResult, camera_result
 from .lambertian import trace_lambertian
 from .registry import Method, register
-from .state import (RR_MAX_DEPTH, PathState, SceneTables, Transport, dot, roulette, shadow_rays)
+from .state import (RR_MAX_DEPTH, RR_START_DEPTH, PathState, SceneTables, Transport, dot, roulette,
+                    shadow_rays)
 from .stream import BSDF, CAMERA_DIMS, LIGHT, LIGHT_SELECT, SampleStream
 
 __all__ = ["HEURISTICS", "KERNELS", "trace_paths", "trace_camera_paths"]
@@ -76,7 +77,8 @@ _MODES = {
 
 
 def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_depth: int | None = None,
-                heuristic: str = "power", rng=None, tracer: Tracer | None = None, kernel: str = "auto"):
+                heuristic: str = "power", rng=None, tracer: Tracer | None = None, kernel: str = "auto",
+                light_sampling: str = "area", rr_depth: int | None = None):
     """Radiance carried back along each camera ray: the wavefront core.
 
     Parameters
@@ -100,6 +102,14 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
     tracer : Tracer, optional
         Reuse a tracer (its precision); default float32.
     kernel : {'auto', 'general', 'lambertian'}
+    light_sampling : {'area', 'solid_angle'}
+        How NEE samples quad lights
+        (:data:`~mcvar.integrators.emitters.LIGHT_SAMPLING`); the MIS weight
+        of a light hit by BSDF sampling uses the same density.
+    rr_depth : int, optional
+        Russian roulette starts once a path has this many segments (default
+        :data:`~mcvar.integrators.state.RR_START_DEPTH`); unbiased for any
+        value, later is more work and less variance.
 
     Returns
     -------
@@ -144,7 +154,8 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
     tracer = tracer if tracer is not None else Tracer(scene)
     stream = SampleStream(None if u is None else np.asarray(u, dtype=np.float64), rng, camera=False)
     return _trace(scene, tracer, np.asarray(origins, dtype=np.float64).T,
-                  np.asarray(directions, dtype=np.float64).T, stream, integrator, max_depth, heuristic, kernel)
+                  np.asarray(directions, dtype=np.float64).T, stream, integrator, max_depth, heuristic, kernel,
+                  light_sampling, rr_depth)
 
 
 def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_depth: int | None = None,
@@ -171,12 +182,14 @@ def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_de
     return _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel)
 
 
-def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel):
+def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel, light_sampling="area",
+           rr_depth=None):
     """The loops' common entry: rays SoA (3, n)."""
     mode = _MODES[integrator]
     if mode.depth is not None:
         max_depth = mode.depth
-    emitters = Emitters(scene)
+    emitters = Emitters(scene, light_sampling)
+    rr_start = RR_START_DEPTH if rr_depth is None else check_count(rr_depth, "rr_depth")
     tables = SceneTables(scene, tracer, emitters)
     if kernel == "lambertian":
         missing = tables.lambertian_missing(emitters)
@@ -185,7 +198,7 @@ def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel
     limit = RR_MAX_DEPTH if max_depth is None else max_depth
     tr = Transport(scene, tracer, emitters, tables, o.shape[1], nee=mode.nee, bsdf_hits=mode.bsdf_hits,
                    mis=mode.mis, weight_fn=HEURISTICS[heuristic], limit=limit, roulette=max_depth is None,
-                   stream=stream)
+                   stream=stream, rr_start=rr_start)
     if tables.lambertian and kernel != "general":
         trace_lambertian(tr, o, d)
     else:
@@ -330,12 +343,15 @@ def run_path_batch(name: str, job: BatchJob) -> BatchResult:
     """``run_batch`` of the path-tracing and direct-lighting methods (``partial(run_path_batch, name)``)."""
     _, o, d, stream = _camera_rays(job)
     radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.max_depth, job.heuristic,
-                            job.options["kernel"])
+                            job.options["kernel"], job.options["light_sampling"], job.options["rr_depth"])
     return camera_result(job, radiance, rays, name)
 
 
 def _check_kernel(scene, options) -> None:
     check_choice(options["kernel"], "kernel", KERNELS)
+    Emitters(scene, options["light_sampling"])    # unknown name or a non-rectangular light: ValueError
+    if options["rr_depth"] is not None:
+        check_count(options["rr_depth"], "rr_depth")
     if options["kernel"] == "lambertian":
         emitters = Emitters(scene)
         missing = SceneTables(scene, Tracer(scene), emitters).lambertian_missing(emitters)
@@ -357,6 +373,7 @@ _LECTURE = {"path": ("almost", "almost")}
 
 for _name, _mode in _MODES.items():
     register(Method(_name, "camera", partial(run_path_batch, _name), _SUMMARIES[_name],
-                    options={"kernel": "auto"}, check_scene=_check_kernel,
+                    options={"kernel": "auto", "light_sampling": "area", "rr_depth": None},
+                    check_scene=_check_kernel,
                     lecture=_LECTURE.get(_name),
                     fixed_depth=_mode.depth))

@@ -196,14 +196,17 @@ class Transport:
     roulette : bool
         Russian roulette from :data:`RR_START_DEPTH` segments on.
     stream : SampleStream
+    rr_start : int
+        Russian roulette from this many segments on (default :data:`RR_START_DEPTH`).
     """
 
     def __init__(self, scene, tracer, emitters, tables, n, *, nee, bsdf_hits, mis, weight_fn, limit,
-                 roulette, stream: SampleStream):
+                 roulette, stream: SampleStream, rr_start: int = RR_START_DEPTH):
         self.scene, self.tracer, self.emitters, self.tables = scene, tracer, emitters, tables
         self.nee = nee and emitters.n_emitters > 0
         self.bsdf_hits, self.mis, self.weight_fn = bsdf_hits, mis, weight_fn
         self.limit, self.roulette, self.stream = limit, roulette, stream
+        self.rr_start = rr_start
         self.eps = float(scene.ray_epsilon)
         self.radiance = np.zeros((3, n))
         self.rays = 0
@@ -269,7 +272,7 @@ def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
     beta = state.beta
     bmax = beta.max(axis=0)
     alive &= bmax > 0.0
-    if tr.roulette and k >= RR_START_DEPTH:
+    if tr.roulette and k >= tr.rr_start:
         q = np.minimum(bmax, 0.95)
         u = tr.stream.vertex(k, ROULETTE, 1, state.idx)[0]
         survive = u < q
