@@ -14,7 +14,7 @@ LAYERS = {
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
     "examples": 4,
     "scene": 4, "tracer": 4,
-    "integrators": 5, "radiosity": 5,
+    "integrators": 5, "radiosity": 5, "photons": 5,
     "experiments": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
