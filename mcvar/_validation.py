@@ -23,6 +23,7 @@ __all__ = [
     "as_points",
     "as_directions",
     "as_unit_square",
+    "as_rgb",
 ]
 
 
@@ -158,3 +159,26 @@ def as_unit_square(u, name: str = "u") -> np.ndarray:
 def as_directions(v, name: str = "directions") -> np.ndarray:
     """Check an array of 3D vectors, shape ``(..., 3)``, finite, as float64."""
     return as_array(v, name, last=3)
+
+
+def as_rgb(value, name: str, *, upper: float | None = None, why: str = "") -> np.ndarray:
+    """An RGB parameter: a scalar (grey, repeated) or three values, each in
+    ``[0, upper]``, returned as a new float64 array of shape ``(3,)``.
+
+    ``bool`` is a ``TypeError``; NaN, Inf, a negative channel, a channel above
+    ``upper`` or another shape raise ``ValueError`` naming ``name``. ``why``
+    is appended to the ``upper`` message (e.g. ``'energy conservation'``).
+    """
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a number or 3 numbers (RGB); got bool")
+    arr = as_array(value, name)
+    if arr.ndim == 0:
+        arr = np.full(3, float(arr))
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must be a scalar or an RGB triple, shape (3,); got shape {arr.shape}")
+    if not np.all(arr >= 0.0):
+        raise ValueError(f"{name} must be >= 0 in every channel (non-negative); got {arr.tolist()}")
+    if upper is not None and not np.all(arr <= upper):
+        reason = f" ({why})" if why else ""
+        raise ValueError(f"{name} must be <= {upper} in every channel{reason}; got {arr.tolist()}")
+    return np.array(arr, dtype=np.float64)

@@ -56,6 +56,7 @@ from scipy.special import erf
 
 from ._validation import (
     as_array,
+    as_rgb,
     as_rng,
     as_unit_square,
     check_choice,
@@ -146,20 +147,8 @@ def _pair(wo, wi):
     return wo, wi
 
 
-def _rgb(value, name: str, *, upper: float | None = 1.0) -> np.ndarray:
-    """An RGB parameter: a scalar (grey) or three values, each in [0, upper]."""
-    if isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be a number or 3 numbers (RGB); got bool")
-    arr = as_array(value, name)
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must be a scalar or have shape (3,) (RGB); got shape {arr.shape}")
-    if not np.all(arr >= 0.0):
-        raise ValueError(f"{name} must be >= 0 in every channel; got {arr.tolist()}")
-    if upper is not None and not np.all(arr <= upper):
-        raise ValueError(f"{name} must be <= {upper} in every channel (energy conservation); got {arr.tolist()}")
-    return arr
+#: Why a reflectance / transmittance channel must be <= 1 (the message of ``as_rgb``).
+_ENERGY = "energy conservation"
 
 
 def _alpha(a, name: str) -> float:
@@ -287,7 +276,7 @@ class Lambertian(BSDF):
     """
 
     def __init__(self, albedo=0.8):
-        self.albedo = _rgb(albedo, "albedo")
+        self.albedo = as_rgb(albedo, "albedo", upper=1.0, why=_ENERGY)
 
     def _params(self):
         return {"albedo": self.albedo}
@@ -326,7 +315,7 @@ class Mirror(BSDF):
     has_delta = True
 
     def __init__(self, reflectance=1.0):
-        self.reflectance = _rgb(reflectance, "reflectance")
+        self.reflectance = as_rgb(reflectance, "reflectance", upper=1.0, why=_ENERGY)
 
     def _params(self):
         return {"reflectance": self.reflectance}
@@ -367,7 +356,7 @@ class Refractive(BSDF):
 
     def __init__(self, eta=1.5, transmittance=1.0):
         self.eta = check_positive(eta, "eta")
-        self.transmittance = _rgb(transmittance, "transmittance")
+        self.transmittance = as_rgb(transmittance, "transmittance", upper=1.0, why=_ENERGY)
 
     def _params(self):
         return {"eta": self.eta, "transmittance": self.transmittance}
@@ -430,8 +419,8 @@ class Glass(BSDF):
         else:
             raise TypeError(f"fresnel must be 'exact', 'schlick' or a number in [0, 1]; got {type(fresnel).__name__}")
         self.fresnel = fresnel
-        self.reflectance = _rgb(reflectance, "reflectance")
-        self.transmittance = _rgb(transmittance, "transmittance")
+        self.reflectance = as_rgb(reflectance, "reflectance", upper=1.0, why=_ENERGY)
+        self.transmittance = as_rgb(transmittance, "transmittance", upper=1.0, why=_ENERGY)
 
     def _params(self):
         return {"eta": self.eta, "fresnel": self.fresnel}
@@ -540,7 +529,7 @@ class Microfacet(BSDF):
         if self.distribution == "beckmann" and self.alpha_x != self.alpha_y:
             raise ValueError("anisotropic roughness (alpha_y != alpha_x) needs distribution='ggx'; "
                              f"got beckmann with alpha_x={self.alpha_x}, alpha_y={self.alpha_y}")
-        self.reflectance = _rgb(reflectance, "reflectance")
+        self.reflectance = as_rgb(reflectance, "reflectance", upper=1.0, why=_ENERGY)
 
     @property
     def anisotropic(self) -> bool:
@@ -647,8 +636,8 @@ class Conductor(Microfacet):
 
     def __init__(self, eta, k, *, alpha_x=0.0, alpha_y=None,
                  distribution: Literal["ggx", "beckmann"] = "ggx"):
-        self.eta = _rgb(eta, "eta", upper=None)
-        self.k = _rgb(k, "k", upper=None)
+        self.eta = as_rgb(eta, "eta")
+        self.k = as_rgb(k, "k")
         if not np.all(self.eta > 0.0):
             raise ValueError(f"eta must be > 0 in every channel; got {self.eta.tolist()}")
         smooth = isinstance(alpha_x, numbers.Real) and not isinstance(alpha_x, (bool, np.bool_)) \
@@ -795,13 +784,13 @@ class Plastic(BSDF):
     """
 
     def __init__(self, diffuse=0.5, *, eta=1.5, alpha=0.0, specular=1.0):
-        self.diffuse = _rgb(diffuse, "diffuse")
+        self.diffuse = as_rgb(diffuse, "diffuse", upper=1.0, why=_ENERGY)
         self.eta = check_positive(eta, "eta")
         if not self.eta >= 1.0:
             raise ValueError(f"eta of a plastic coat must be >= 1; got {self.eta}")
         alpha = check_positive(alpha, "alpha", allow_zero=True)
         self.alpha = 0.0 if alpha == 0.0 else _alpha(alpha, "alpha")
-        self.specular = _rgb(specular, "specular")
+        self.specular = as_rgb(specular, "specular", upper=1.0, why=_ENERGY)
         self.fdr_ext = _diffuse_fresnel_reflectance(self.eta)
         #: hemispherical-average reflectance of the coat seen from inside,
         #: from 1 - F_dr,int = (1 - F_dr,ext) / eta^2 (energy balance).
@@ -945,7 +934,7 @@ class Retroreflective(BSDF):
     """
 
     def __init__(self, albedo=0.8, exponent=20.0):
-        self.albedo = _rgb(albedo, "albedo")
+        self.albedo = as_rgb(albedo, "albedo", upper=1.0, why=_ENERGY)
         self.exponent = check_positive(exponent, "exponent", allow_zero=True)
 
     def _params(self):

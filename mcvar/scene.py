@@ -40,7 +40,7 @@ from typing import Callable
 
 import numpy as np
 
-from ._validation import as_array, check_positive
+from ._validation import as_array, as_rgb, check_positive
 from .bsdf import Glass, Lambertian, Mirror
 from .geometry import normalize
 
@@ -492,14 +492,6 @@ def checkerboard_scene(period: float = 1.0) -> Scene:
         checker_period=period, ray_epsilon=1e-3)
 
 
-def _rgb(value, name):
-    arr = as_array(value, name, nonnegative=True)
-    arr = np.broadcast_to(arr, (3,)) if arr.ndim == 0 else arr
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must be a scalar or an RGB triple; got shape {arr.shape}")
-    return np.array(arr, dtype=np.float64)
-
-
 def furnace_scene(albedo=0.5, emission=1.0) -> Scene:
     """The camera inside a closed Lambertian sphere that emits everywhere.
 
@@ -519,10 +511,10 @@ def furnace_scene(albedo=0.5, emission=1.0) -> Scene:
     event estimation has nothing to sample), so it is found by BSDF sampling
     alone, with MIS weight 1.
     """
-    rho = _rgb(albedo, "albedo")
+    rho = as_rgb(albedo, "albedo")
     if not np.all(rho < 1.0):
         raise ValueError(f"albedo must be < 1 for a finite furnace; got {rho}")
-    le = _rgb(emission, "emission")
+    le = as_rgb(emission, "emission")
     return Scene(
         name="furnace", description="closed emitting Lambertian sphere",
         triangles=np.zeros((0, 3, 3)), sphere_centers=[(0.0, 0.0, 0.0)], sphere_radii=[1.0],
@@ -557,8 +549,8 @@ def quad_environment_scene(albedo=0.5, radiance=1.0, resolution=(8, 16)) -> Scen
     """
     from .envmap import constant
 
-    rho = _rgb(albedo, "albedo")
-    le = _rgb(radiance, "radiance")
+    rho = as_rgb(albedo, "albedo")
+    le = as_rgb(radiance, "radiance")
     h, w = resolution
     env = constant(le, height=h, width=w)
     quad = np.array([(-1.0, 0.0, -1.0), (-1.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 0.0, -1.0)])

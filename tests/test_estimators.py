@@ -20,6 +20,7 @@ from mcvar.estimators import (
     balance_heuristic,
     contribution,
     convergence_study,
+    efficiency,
     estimate,
     estimate_mean,
     hemisphere_estimate,
@@ -27,6 +28,7 @@ from mcvar.estimators import (
     mis_weights,
     one_sample_mis,
     power_heuristic,
+    replicate_moments,
     replicate_study,
 )
 
@@ -571,13 +573,25 @@ class TestStudies:
         assert lo < 4.0 < hi
         lo, hi = s.bias_ci(1 - ALPHA)
         assert lo < 1.0 < hi
-        assert s.efficiency == pytest.approx(1 / (s.variance * s.time))
+        # one efficiency definition, 1 / (MSE x time) (Veach sec. 2.4.3 with the MSE
+        # for a biased estimator): here bias 1 > 0, so it is below 1 / (variance x time)
+        assert s.efficiency == pytest.approx(1 / (s.mse * s.time))
+        assert s.efficiency < 1 / (s.variance * s.time)
 
     def test_study_errors(self):
         with pytest.raises(ValueError, match="replicates must be >= 2"):
             replicate_study(lambda n, rng: 1.0, 1, replicates=1)
         with pytest.raises(ValueError, match="exact is None"):
             replicate_study(lambda n, rng: rng.random(), 1, replicates=3).bias
+        with pytest.raises(ValueError, match="exact is None"):
+            replicate_study(lambda n, rng: rng.random(), 1, replicates=3).efficiency
+        with pytest.raises(ValueError, match="replicates"):
+            replicate_moments([1.0], 0.0)
+        with pytest.raises(ValueError, match="exact must be"):
+            replicate_moments(np.ones((3, 4)), np.zeros(3))
+        with pytest.raises(ValueError, match="seconds"):
+            efficiency(1.0, -1.0)
+        assert efficiency(0.0, 1.0) == math.inf
         with pytest.raises(ValueError, match="finite scalar"):
             replicate_study(lambda n, rng: np.ones(2), 1, replicates=3)
         with pytest.raises(ValueError, match="quantity"):

@@ -107,6 +107,19 @@ def test_bias_squared_is_corrected_for_noise(fake_result):
         assert m.figure_of_merit == pytest.approx(m.mse * m.seconds)
 
 
+def test_one_replicate_statistics_and_efficiency_with_estimators(fake_result):
+    # experiments and mcvar.estimators.ReplicateStudy share one implementation
+    # (replicate_moments) and one efficiency definition, 1 / (MSE x time)
+    from mcvar.estimators import efficiency, replicate_moments
+
+    ref = fake_result.reference
+    for m in fake_result.metrics:
+        values = fake_result.values[(m.method, m.sampler, m.spp)]
+        assert replicate_moments(values, ref.value, ref.variance) == (m.variance, m.bias2, m.mse)
+        assert m.mse == pytest.approx(m.variance + m.bias2, rel=1e-12, abs=1e-15)
+        assert m.efficiency == efficiency(m.mse, m.seconds)
+
+
 def test_bias_test_and_verdicts(fake_result):
     v = fake_result.verdicts
     assert (v["unbiased"].label, v["biased"].label, v["vanishing"].label, v["single"].label) == \

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from mcvar._validation import (as_directions, as_points, as_rng, as_unit_square, check_choice,
+from mcvar._validation import (as_directions, as_points, as_rgb, as_rng, as_unit_square, check_choice,
                                check_count, check_positive, check_probability)
 
 
@@ -63,3 +63,21 @@ def test_scalar_checks():
         check_choice("max", "heuristic", ["power", "balance"])
     with pytest.raises(ValueError, match=r"wi must have shape \(\.\.\., 3\)"):
         as_directions(np.zeros((3, 2)), "wi")
+
+
+def test_as_rgb_one_helper_for_bsdf_envmap_and_scene():
+    assert as_rgb(0.25, "albedo").tolist() == [0.25, 0.25, 0.25]
+    given = np.array([0.1, 0.2, 0.3])
+    out = as_rgb(given, "albedo", upper=1.0)
+    assert out.tolist() == given.tolist() and out.dtype == np.float64 and out is not given
+    assert as_rgb([5.0, 0.0, 2.0], "radiance").tolist() == [5.0, 0.0, 2.0]   # no upper bound
+    with pytest.raises(TypeError, match="albedo must be a number or 3 numbers"):
+        as_rgb(True, "albedo")
+    with pytest.raises(ValueError, match=r"albedo must be a scalar or an RGB triple, shape \(3,\); got shape \(2,\)"):
+        as_rgb([0.1, 0.2], "albedo")
+    with pytest.raises(ValueError, match=r"albedo must be >= 0 in every channel \(non-negative\)"):
+        as_rgb([0.1, -0.1, 0.2], "albedo")
+    with pytest.raises(ValueError, match="albedo must be finite"):
+        as_rgb([0.1, np.nan, 0.2], "albedo")
+    with pytest.raises(ValueError, match=r"albedo must be <= 1.0 in every channel \(energy conservation\)"):
+        as_rgb(1.2, "albedo", upper=1.0, why="energy conservation")

@@ -1,0 +1,48 @@
+"""Convergence experiments: sweeps, replicates, references, verdicts (layer 6, a package).
+
+A *sweep* runs one target (an integrand of :mod:`mcvar.examples` or a scene
+rendered by :func:`mcvar.integrators.render`) for every combination of
+method x sampler x spp level x replicate, and turns the replicates into the
+numbers the lecture's 'Variance', 'Bias & Consistency' and 'Rendering
+Algorithm Chart' slides talk about: per-pixel variance, squared bias, MSE,
+relative MSE, wall time, efficiency ``1 / (MSE x time)``, log-log convergence
+rates with their standard errors, a test of whether the bias is zero, and a
+verdict per method (unbiased, consistent, both or neither).
+
+Runs are independent tasks submitted to any :class:`concurrent.futures.Executor`
+(a process pool by default, :class:`SerialExecutor` in-process, or a Dask
+client's ``client.get_executor()``). Each replicate's random stream is derived
+from the seed and the configuration, never from the order of execution, so the
+numbers are identical whichever executor runs them. Finished runs can be cached
+on disk, so an interrupted sweep resumes where it stopped.
+
+Modules, each importing only those listed before it
+(``tests/test_layering.py``): :mod:`~mcvar.experiments.targets`,
+:mod:`~mcvar.experiments.runs` (streams, executors, caches),
+:mod:`~mcvar.experiments.reference`, :mod:`~mcvar.experiments.analysis`
+(metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`. Every public
+name is importable from ``mcvar.experiments`` itself.
+"""
+from .targets import Target, integrand_target, lecture_target, make_target, parse_method, scene_target
+from .runs import CACHE_VERSION, SerialExecutor, run_seed
+from .reference import Reference, compute_reference
+from .analysis import ConfigMetrics, MethodFits, Verdict
+from .sweeps import SweepResult, sweep
+
+__all__ = [
+    "Target",
+    "Reference",
+    "ConfigMetrics",
+    "MethodFits",
+    "Verdict",
+    "SweepResult",
+    "SerialExecutor",
+    "integrand_target",
+    "lecture_target",
+    "scene_target",
+    "make_target",
+    "parse_method",
+    "run_seed",
+    "compute_reference",
+    "sweep",
+]

@@ -1,0 +1,267 @@
+"""The sweep: every method x sampler x spp level x replicate of a target, run
+on any executor and measured (layer 6, module 5 of :mod:`mcvar.experiments`)."""
+from __future__ import annotations
+
+import os
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._validation import check_count, check_probability
+from .targets import make_target
+from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, run_seed
+from .reference import Reference, compute_reference
+from .analysis import ConfigMetrics, _config_metrics, _fits, _verdicts, _with_detection
+
+
+# --------------------------------------------------------------------------
+# The sweep
+# --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SweepResult:
+    """Everything a sweep measured.
+
+    Attributes
+    ----------
+    metrics : tuple of ConfigMetrics
+        One per (method, sampler, spp), in sweep order.
+    fits : dict
+        ``(method, sampler) -> MethodFits``.
+    verdicts : dict
+        ``method -> Verdict``.
+    values : dict
+        ``(method, sampler, spp) -> ndarray (R, ...)``: every replicate.
+    seconds : dict
+        ``(method, sampler, spp) -> ndarray (R,)``: wall time of each run.
+    computed, cached : int
+        Runs computed by this call and runs loaded from the cache.
+    alpha, alpha_family : float
+        Family-wise significance of the bias tests and the per-test level
+        after the Sidak correction.
+    """
+
+    target: str
+    methods: tuple
+    samplers: tuple
+    spp: tuple
+    replicates: int
+    seed: int
+    reference: Reference
+    metrics: tuple
+    fits: dict
+    verdicts: dict
+    values: dict = field(repr=False)
+    seconds: dict = field(repr=False)
+    computed: int = 0
+    cached: int = 0
+    alpha: float = 1e-3
+    alpha_family: float = 1e-3
+
+    def pixel_variance(self, method: str, sampler: str, spp: int) -> np.ndarray:
+        """Per-pixel variance across replicates (ddof = 1), shape of one estimate."""
+        return self.values[(method, sampler, spp)].var(axis=0, ddof=1)
+
+    def rows(self) -> list[dict]:
+        """One dict per configuration: every number, for a CSV."""
+        out = []
+        for m in self.metrics:
+            row = {"target": self.target, **{k: getattr(m, k) for k in ConfigMetrics.__dataclass_fields__}}
+            row["mse_x_time"] = m.figure_of_merit
+            out.append(row)
+        return out
+
+
+def _as_levels(spp) -> tuple:
+    if isinstance(spp, (int, np.integer)):
+        spp = [spp]
+    levels = [check_count(s, "spp") for s in spp]
+    if len(levels) == 0:
+        raise ValueError("spp must hold at least one level")
+    return tuple(sorted(set(levels)))
+
+
+def _as_names(names, what: str) -> tuple:
+    if isinstance(names, str):
+        names = [names]
+    names = tuple(names)
+    if not names or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"{what} must be a non-empty sequence of strings; got {names!r}")
+    return tuple(dict.fromkeys(names))
+
+
+def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8, seed: int = 0,
+          reference=None, executor: Executor | None = None, workers: int | None = None,
+          cache_dir=None, res: int = 32, alpha: float = 1e-3, progress: bool = True) -> SweepResult:
+    """Run ``target`` for every method x sampler x spp level x replicate and measure it.
+
+    Parameters
+    ----------
+    target : Target or str
+        A :class:`Target`, or a name for :func:`make_target` (an integrand of
+        ``mcvar.examples.PROBLEMS`` or a scene).
+    methods, samplers : sequence of str, optional
+        Defaults: the target's.
+    spp : sequence of int, optional
+        Samples (per pixel) levels; sorted, duplicates dropped. Default: the
+        target's.
+    replicates : int
+        Independent runs per configuration, >= 3 (the jackknife needs 3).
+    seed : int
+        Root of every stream (:func:`run_seed`).
+    reference : Reference, str or Path, optional
+        The comparison value; default :func:`compute_reference` (exact, or
+        rendered and cached in ``cache_dir``).
+    executor : concurrent.futures.Executor, optional
+        Runs the tasks: e.g. ``client.get_executor()`` of a Dask client.
+        Default: a :class:`~concurrent.futures.ProcessPoolExecutor` with
+        ``workers`` processes (all cores when None), or a
+        :class:`SerialExecutor` when ``workers == 1``.
+    cache_dir : str or Path, optional
+        Folder for finished runs and references; runs found there are not
+        recomputed (an interrupted sweep resumes). None: no disk cache.
+    res : int
+        Resolution of scene targets given by name.
+    alpha : float
+        Family-wise significance of the bias tests of one method.
+    progress : bool
+        One tqdm bar for the whole sweep.
+
+    Returns
+    -------
+    SweepResult
+
+    Notes
+    -----
+    With ``X_r`` the R replicates of one configuration (per pixel), ``s^2``
+    their sample variance, ``b = mean_r X_r - ref`` and ``v_ref`` the variance
+    of the reference itself, the sweep reports per configuration (averaged
+    over pixels)
+
+    * variance ``s^2`` (unbiased for Var X: the lecture's 'Variance' slide),
+    * squared bias ``b^2 - s^2 / R - v_ref`` (unbiased for beta^2, because
+      ``E[b^2] = beta^2 + Var(X)/R + v_ref``),
+    * MSE = variance + squared bias, efficiency ``1 / (MSE x time)``
+      [Veach 1997, sec. 2.4.3],
+
+    with jackknife standard errors over replicates.
+
+    *Bias test.* The element-mean of an estimate (the mean image value) has
+    replicates ``T_r``; Welch's t statistic ``(mean T - T_ref) / sqrt(var(T)/R
+    + Var(T_ref))`` with Welch-Satterthwaite degrees of freedom gives a
+    two-sided p-value. A method's bias is declared distinguishable from zero
+    at a configuration when p < 1 - (1 - alpha)^(1/m), the Sidak level for its
+    m configurations; the method is *unbiased* when no configuration rejects
+    ('Bias & Consistency': E[I - I_n] = 0 even for one sample). A bias that
+    cancels over the image escapes this test (the per-pixel squared bias is
+    reported beside it).
+
+    *Consistency.* Per sampler: the MSE falls (MSE at the largest spp below
+    the MSE at the smallest, one-sided z test with their jackknife errors at
+    level ``alpha``) and the bias vanishes (not detected at the largest spp,
+    or its square falls significantly by the same test). A fixed-depth path
+    tracer's MSE levels off at its squared bias: not consistent. 'Not
+    consistent' means consistency was not shown by these measurements.
+
+    References
+    ----------
+    .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
+       Simulation", PhD thesis, Stanford University, 1997, sec. 1.4.4, 2.4.3.
+    .. [2] B. L. Welch, "The generalization of 'Student's' problem when several
+       different population variances are involved", Biometrika 34, 1947.
+    .. [3] B. Efron, C. Stein, "The jackknife estimate of variance", Annals of
+       Statistics 9(3), 1981.
+    """
+    target = make_target(target, res=res)
+    methods = _as_names(methods if methods is not None else target.methods, "methods")
+    samplers = _as_names(samplers if samplers is not None else target.samplers, "samplers")
+    levels = _as_levels(spp if spp is not None else target.spp)
+    replicates = check_count(replicates, "replicates")
+    if replicates < 3:
+        raise ValueError(f"replicates must be >= 3 (variance and its jackknife error); got {replicates}")
+    seed = check_count(seed, "seed", allow_zero=True)
+    alpha = check_probability(alpha, "alpha")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
+    if workers is not None:
+        workers = check_count(workers, "workers")
+    if executor is not None and not isinstance(executor, Executor):
+        raise TypeError(f"executor must be a concurrent.futures.Executor; got {type(executor).__name__}")
+    cache = Path(cache_dir) if cache_dir is not None else None
+
+    own = executor is None
+    if own:
+        n_workers = workers or os.cpu_count() or 1
+        executor = SerialExecutor() if n_workers == 1 else ProcessPoolExecutor(max_workers=n_workers)
+        window = 2 * n_workers
+    else:
+        window = 1 << 30
+    try:
+        if isinstance(reference, Reference):
+            ref = reference
+        else:
+            ref = compute_reference(target, seed=seed, executor=executor, cache_dir=cache,
+                                    path=reference, progress=progress)
+        configs = [(m, s, n) for m in methods for s in samplers for n in levels]
+        values: dict = {}
+        secs: dict = {}
+        jobs, where = [], []
+        cached = 0
+        for m, s, n in configs:
+            streams = run_seed(seed, target.key, m, s, n, replicates)
+            values[(m, s, n)] = [None] * replicates
+            secs[(m, s, n)] = np.zeros(replicates)
+            for r, stream in enumerate(streams):
+                path = None
+                if cache is not None:
+                    path = cache / "runs" / f"{_digest(CACHE_VERSION, target.key, m, s, n, r, seed)}.npz"
+                    if path.is_file():
+                        with np.load(path) as data:
+                            values[(m, s, n)][r] = data["value"]
+                            secs[(m, s, n)][r] = float(data["seconds"])
+                        cached += 1
+                        continue
+                jobs.append((target.evaluate, m, s, n, stream))
+                where.append(((m, s, n), r, path))
+
+        def keep(i, result):
+            key, r, path = where[i]
+            value, seconds = result
+            if value.size == 0 or not np.all(np.isfinite(value)):
+                raise ValueError(f"target {target.name!r} returned a non-finite or empty estimate for "
+                                 f"{key} replicate {r}")
+            values[key][r] = value
+            secs[key][r] = seconds
+            if path is not None:
+                _atomic_save(path, value=value, seconds=seconds)
+
+        from tqdm.auto import tqdm
+
+        total = len(configs) * replicates
+        with tqdm(total=total, initial=cached, desc=f"{target.name} sweep", disable=not progress,
+                  unit="run") as bar:
+            _map(executor, _run, jobs, window=window, on_done=keep, progress_bar=bar)
+    finally:
+        if own:
+            executor.shutdown(wait=True, cancel_futures=True)
+
+    stacked = {k: np.stack(v) for k, v in values.items()}
+    for k, v in stacked.items():
+        if v.shape[1:] != ref.value.shape:
+            raise ValueError(f"estimates of {k} have shape {v.shape[1:]} but the reference has "
+                             f"{ref.value.shape}")
+    metrics = [_config_metrics(m, s, n, stacked[(m, s, n)], secs[(m, s, n)], ref) for m, s, n in configs]
+    per_method = len(samplers) * len(levels)
+    alpha_family = 1.0 - (1.0 - alpha) ** (1.0 / per_method)
+    metrics = tuple(_with_detection(m, alpha_family) for m in metrics)
+    fits = {}
+    for m in methods:
+        for s in samplers:
+            rows = [x for x in metrics if x.method == m and x.sampler == s]
+            fits[(m, s)] = _fits(m, s, rows, alpha)
+    verdicts = _verdicts(methods, metrics, fits, alpha_family)
+    return SweepResult(target.name, methods, samplers, levels, replicates, seed, ref, metrics, fits,
+                       verdicts, stacked, secs, computed=len(jobs), cached=cached, alpha=alpha,
+                       alpha_family=alpha_family)
