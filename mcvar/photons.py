@@ -192,7 +192,7 @@ def _emit(scene: Scene, n: int, n_total: int, rng):
 
 
 def trace_photons(scene: Scene, n_photons: int, *, rng=None, tracer: Tracer | None = None,
-                  max_depth: int | None = None, batch: int = PHOTONS_PER_BATCH):
+                  max_depth: int | None = None, batch: int = PHOTONS_PER_BATCH, ray_counter=None):
     """Emit ``n_photons`` from the lights and yield the stored photons batch by batch.
 
     Parameters
@@ -209,6 +209,8 @@ def trace_photons(scene: Scene, n_photons: int, *, rng=None, tracer: Tracer | No
         roulette with survival ``min(0.95, max_c beta' / max_c beta)``.
     batch : int
         Photons emitted per batch.
+    ray_counter : list, optional
+        ``ray_counter[0]`` is increased by the rays traced.
 
     Yields
     ------
@@ -231,6 +233,8 @@ def trace_photons(scene: Scene, n_photons: int, *, rng=None, tracer: Tracer | No
         while o.shape[0] and k < limit:
             k += 1
             hit = tracer.intersect(o, d)
+            if ray_counter is not None:
+                ray_counter[0] += o.shape[0]
             ok = hit.prim >= 0
             o, d, beta, prim, t = o[ok], d[ok], beta[ok], hit.prim[ok], hit.t[ok]
             if not o.shape[0]:
@@ -476,7 +480,7 @@ class SPPMResult:
     ``image`` (H, W, 3); ``radius`` (H, W) final per-pixel radii;
     ``photon_count`` (H, W) the ``N`` of every pixel; ``iterations``;
     ``photons`` emitted in total; ``seconds``; ``peak_photons``: most
-    photons held at once (one batch).
+    photons held at once (one batch); ``rays`` traced (camera and photon).
     """
 
     image: np.ndarray
@@ -486,6 +490,7 @@ class SPPMResult:
     photons: int
     seconds: float
     peak_photons: int
+    rays: int = 0
 
 
 def default_radius(scene: Scene) -> float:
@@ -500,7 +505,7 @@ def default_radius(scene: Scene) -> float:
 
 def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: int = 1 << 15,
          radius: float | None = None, alpha: float = 0.7, rng=None, max_depth: int | None = None,
-         tracer: Tracer | None = None, callback=None) -> SPPMResult:
+         tracer: Tracer | None = None, callback=None, pixel_offsets=None) -> SPPMResult:
     """Stochastic progressive photon mapping (Hachisuka and Jensen 2009).
 
     Parameters
@@ -523,6 +528,9 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
     tracer : Tracer, optional
     callback : callable, optional
         ``callback(iteration, image_so_far)`` after every iteration.
+    pixel_offsets : ndarray, shape (W H, iterations, 2), optional
+        Position of each iteration's camera ray inside its pixel (e.g. a
+        pixel sampler's points, pixel-major); default iid uniform from ``rng``.
 
     Returns
     -------
@@ -553,6 +561,11 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
     rng = as_rng(rng)
     tracer = Tracer(scene) if tracer is None else tracer
     n_pix = w * h
+    if pixel_offsets is not None:
+        pixel_offsets = np.asarray(pixel_offsets, dtype=np.float64)
+        if pixel_offsets.shape != (n_pix, iterations, 2):
+            raise ValueError(f"pixel_offsets must have shape (W H, iterations, 2) = {(n_pix, iterations, 2)}; "
+                             f"got {pixel_offsets.shape}")
     big_r = np.full(n_pix, r0)
     count = np.zeros(n_pix)
     tau = np.zeros((n_pix, 3))
@@ -560,11 +573,14 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
     start = time.perf_counter()
     peak = 0
     done = 0
+    rays = 0
     pixel = np.arange(n_pix)
     for it in range(iterations):
-        d = scene.camera.ray_directions((w, h), pixel, rng.random((n_pix, 2)))
+        off = rng.random((n_pix, 2)) if pixel_offsets is None else pixel_offsets[:, it]
+        d = scene.camera.ray_directions((w, h), pixel, off)
         o = np.broadcast_to(scene.camera.position, d.shape)
         vp = visible_points(scene, tracer, o, d, rng=rng, max_depth=max_depth)
+        rays += vp.rays
         le_sum += vp.emitted
         rows = np.flatnonzero(vp.valid & (vp.beta.max(axis=1) > 0))
         phi = np.zeros((n_pix, 3))
@@ -573,8 +589,9 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
             vp_tree = cKDTree(vp.position[rows])
             r_rows = big_r[rows]
             r_max = float(r_rows.max())
+            counter = [0]
             for batch in trace_photons(scene, photons_per_iteration, rng=rng, tracer=tracer,
-                                       max_depth=max_depth):
+                                       max_depth=max_depth, ray_counter=counter):
                 peak = max(peak, batch.n)
                 pairs = vp_tree.sparse_distance_matrix(cKDTree(batch.position), r_max, output_type="coo_matrix")
                 if not pairs.nnz:
@@ -585,6 +602,7 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
                 m_new[rows] += np.bincount(vi, minlength=rows.size)
                 for ch in range(3):
                     phi[rows, ch] += np.bincount(vi, c[:, ch], minlength=rows.size)
+            rays += counter[0]
         got = m_new > 0
         n_next = count + alpha * m_new
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -597,7 +615,7 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
             callback(done, _sppm_image(le_sum, tau, big_r, done, w, h))
     return SPPMResult(image=_sppm_image(le_sum, tau, big_r, done, w, h), radius=big_r.reshape(h, w),
                       photon_count=count.reshape(h, w), iterations=done, photons=done * photons_per_iteration,
-                      seconds=time.perf_counter() - start, peak_photons=peak)
+                      seconds=time.perf_counter() - start, peak_photons=peak, rays=rays)
 
 
 def _sppm_image(le_sum, tau, big_r, iterations, w, h):

@@ -56,7 +56,6 @@ References
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
