@@ -59,16 +59,9 @@ def main(quick: bool = False):
                       f"{best / 1e6:>10.3f} M {med / 1e6:>6.3f} M {best * rp / 1e6:>9.3f} M {rp:>9.2f}")
     # the general loop (material sort, BSDF method calls) against the trusted
     # Lambertian loop the Cornell box runs by default
-    import mcvar.integrators as integ
-
     for integrator in ("path", "direct"):
-        rates = {}
-        for fast in (True, False):
-            integ._LAMBERTIAN_FAST = fast
-            try:
-                rates[fast] = _rate(scene, integrator, 64, 16, repeats)
-            finally:
-                integ._LAMBERTIAN_FAST = True
+        rates = {fast: _rate(scene, integrator, 64, 16, repeats, kernel="lambertian" if fast else "general")
+                 for fast in (True, False)}
         print(f"{integrator:>10} 64x64x16 float32, 1 worker: trusted Lambertian loop "
               f"{rates[True][0] / 1e6:.3f} M (median {rates[True][1] / 1e6:.3f} M), general loop "
               f"{rates[False][0] / 1e6:.3f} M (median {rates[False][1] / 1e6:.3f} M) paths/s")

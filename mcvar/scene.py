@@ -343,6 +343,38 @@ class Scene:
         n = np.cross(self.light_edge1, self.light_edge2)
         return n / np.linalg.norm(n, axis=1, keepdims=True)
 
+    def emission(self, prim, points, normals, directions) -> np.ndarray:
+        """Radiance emitted by primitives ``prim`` at ``points`` towards ``-directions``.
+
+        The surface's emission lookup the integrators call at every emitter
+        hit: the primitive's ``prim_emission``, zero on the back of one-sided
+        emitters (``normals . directions >= 0``, geometric normals as from
+        :meth:`mcvar.tracer.Tracer.normals`) and, when ``checker_period`` is
+        set, times the checker texture ``(floor(x / p) + floor(z / p)) mod 2``
+        of the hit point.
+
+        Parameters
+        ----------
+        prim : ndarray of int, shape (n,)
+        points, normals, directions : ndarray, shape (n, 3)
+            Hit points, unit geometric normals, and the directions of the
+            rays that reached them (pointing *at* the surface).
+
+        Returns
+        -------
+        ndarray, shape (n, 3), float64
+        """
+        le = np.take(self.prim_emission, prim, axis=0)
+        if not np.any(le):
+            return le
+        front = np.einsum("ij,ij->i", normals, directions) < 0.0
+        le = np.where((front | np.take(self.prim_two_sided_emission, prim))[:, None], le, 0.0)
+        if self.checker_period is not None:
+            c = (np.floor(points[:, 0] / self.checker_period)
+                 + np.floor(points[:, 2] / self.checker_period)) % 2.0
+            le = le * c[:, None]
+        return le
+
 
 # --------------------------------------------------------------------------
 # Builders

@@ -320,17 +320,16 @@ def test_shadow_rays_to_infinitely_far_samples_keep_their_direction():
 @pytest.mark.parametrize("integrator,max_depth", [("path", None), ("path", 3), ("direct", None),
                                                   ("direct_light", None), ("direct_bsdf", None),
                                                   ("path_bsdf", None)])
-def test_trusted_lambertian_loop_agrees_with_the_general_loop(cornell, monkeypatch, integrator, max_depth):
+def test_trusted_lambertian_loop_agrees_with_the_general_loop(cornell, integrator, max_depth):
     # The Cornell box (Lambertian triangles, one quad light) runs the trusted
     # loop _trace_lambertian; the general loop (material sort, BSDF calls)
     # must give the same image in expectation: per-channel image means within
     # Z combined standard errors, and the same rays per path to ~Z binomial-ish
     # noise (both trace the same kinds of rays).
-    import mcvar.integrators as integ
-
-    a = render(cornell, integrator=integrator, spp=16, res=16, rng=SEED + 130, max_depth=max_depth)
-    monkeypatch.setattr(integ, "_LAMBERTIAN_FAST", False)
-    b = render(cornell, integrator=integrator, spp=16, res=16, rng=SEED + 131, max_depth=max_depth)
+    a = render(cornell, integrator=integrator, spp=16, res=16, rng=SEED + 130, max_depth=max_depth,
+               kernel="lambertian")
+    b = render(cornell, integrator=integrator, spp=16, res=16, rng=SEED + 131, max_depth=max_depth,
+               kernel="general")
     (ma, sa), (mb, sb) = _mean_and_se(a), _mean_and_se(b)
     assert np.all(np.abs(ma - mb) < Z * np.hypot(sa, sb)), (ma, mb, sa, sb)
     # rays per path: each path traces between 1 and 2 * depth rays, so its
@@ -356,7 +355,7 @@ def test_batches_trace_slices_of_one_stratified_set_per_pixel():
     # A 64-spp Sobol render traced in four 16-spp batches must still see each
     # pixel's 64 points as one (0, 6, 2)-net, not four unrelated 16-point nets.
     from mcvar.discrepancy import is_net
-    from mcvar.integrators import SAMPLES_PER_SET, _sample_slices
+    from mcvar.integrators import WHOLE_SET_FLOATS, _sample_slices
 
     rng = np.random.default_rng(60606)
     slices = _sample_slices("sobol", 5, 64, [16, 16, 16, 16], 6, rng)
@@ -367,7 +366,7 @@ def test_batches_trace_slices_of_one_stratified_set_per_pixel():
         assert is_net(pixel[:, 2:4], 6)  # and a padded pair
     # iid points have nothing to keep, and sets past the budget are drawn per batch
     assert _sample_slices("random", 5, 64, [16] * 4, 6, rng) == [None] * 4
-    n_pix = SAMPLES_PER_SET // 16 + 1
+    n_pix = WHOLE_SET_FLOATS // 64 // 2 + 1      # not even one pair of dimensions fits
     assert _sample_slices("sobol", n_pix, 64, [16] * 4, 6, rng) == [None] * 4
 
 

@@ -1,0 +1,45 @@
+"""Rendering methods and :func:`render` (layer 5): a package of registered methods.
+
+=================  ===========================================================
+module             holds
+=================  ===========================================================
+``registry``       :class:`Method`, :func:`register`, :data:`METHODS`
+``film``           :class:`BatchJob`, :class:`BatchResult`, :class:`Film`,
+                   :func:`splat`, :class:`Render`
+``stream``         the per-path sample stream: column layout, :class:`SampleStream`
+``emitters``       next-event estimation (``Emitters.sample_li``/``pdf_li``) and
+                   light subpaths (:func:`sample_le`, :func:`pdf_le`)
+``state``          the wavefront: ``PathState``, scene tables, MIS weights of
+                   emission, Russian roulette, shadow rays
+``lambertian``     the loop written out for Lambertian triangles and one quad light
+``path``           ``path``, ``path_bsdf``, ``direct``, ``direct_light``,
+                   ``direct_bsdf``; :func:`trace_paths`
+``aov``            ``albedo``, ``normal``, ``depth``, ``raster``
+``driver``         :func:`render`, :class:`WorkerPool`, batches and seeds
+=================  ===========================================================
+
+A new method is one module that builds a :class:`Method` and calls
+:func:`register`, plus one import line here (docs/integrators.md).
+"""
+from __future__ import annotations
+
+from .registry import KINDS, METHODS, Method, get_method, register
+from .film import BatchJob, BatchResult, Film, Render, camera_result, splat
+from .stream import SAMPLER_DIM, stream_dim
+from .emitters import Emitters, pdf_le, sample_le
+from .state import RR_MAX_DEPTH, RR_START_DEPTH, shadow_rays as _shadow_rays
+from .path import HEURISTICS, KERNELS, trace_camera_paths, trace_paths
+from .aov import aov_method
+from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
+                     estimate_render_bytes, render)
+from .stream import WHOLE_SET_FLOATS, sample_slices as _sample_slices
+
+#: Method names accepted by :func:`render` when the package was imported
+#: (:data:`METHODS` is the live registry).
+INTEGRATORS = tuple(METHODS)
+
+__all__ = ["INTEGRATORS", "HEURISTICS", "KERNELS", "KINDS", "METHODS", "Method", "register", "get_method",
+           "BatchJob", "BatchResult", "Film", "Render", "splat", "camera_result", "render", "trace_paths",
+           "trace_camera_paths", "WorkerPool", "PATHS_PER_BATCH", "MAX_RENDER_BYTES", "BYTES_PER_PATH",
+           "estimate_render_bytes", "SAMPLER_DIM", "stream_dim", "Emitters", "sample_le", "pdf_le",
+           "aov_method", "RR_START_DEPTH", "RR_MAX_DEPTH"]

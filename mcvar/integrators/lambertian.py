@@ -1,0 +1,123 @@
+"""The Lambertian kernel: :func:`mcvar.integrators.trace_paths`' loop written out
+for scenes of Lambertian triangles lit by one quad light (the Cornell box).
+
+The same estimator as the general loop of :mod:`mcvar.integrators.path`
+(the same sample stream layout, MIS weights, Russian roulette and shadow
+rays), with the BSDF written out: ``f = albedo / pi``, ``p = cos theta /
+pi`` (so the sampling weight is ``albedo``), sampled by Malley's method
+through the warps' unchecked kernel on arrays built here. Because no
+material needs its own call, the rays are not sorted by material; the
+:class:`~mcvar.integrators.state.PathState` block is kept in the ray
+geometry's precision, so compaction is one ``np.take`` of half the bytes.
+The shading frame is the triangle's unflipped frame with the normal's sign
+``sgn = sign(wo . n_g)`` applied to the local ``y`` only (the
+cosine-weighted density is symmetric in ``x`` and ``z``, so which of the
+two tangent orientations is used does not change the distribution).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..warps import _square_to_cosine_hemisphere_unchecked
+from .state import PathState, Transport, dot, roulette, shadow_rays
+from .stream import BSDF, LIGHT
+
+__all__ = ["trace_lambertian"]
+
+
+class _Tables:
+    """Per-triangle albedo, ``albedo Le / pi`` and unflipped frames (9, T)."""
+
+    def __init__(self, tr: Transport):
+        scene, tables = tr.scene, tr.tables
+        self.frame9 = np.ascontiguousarray(np.concatenate(
+            [tables.frame_s[:, 0::2], tables.frame_n[:, 0::2], tables.frame_t[:, 0::2]]))
+        albedo = np.array([m.albedo for m in scene.materials]).T          # (3, M)
+        self.albedo = np.ascontiguousarray(albedo[:, scene.prim_material])   # (3, T)
+        le = tr.emitters.radiance_soa[:, :1]
+        self.f_le = np.ascontiguousarray(self.albedo / np.pi * le)          # NEE's f Le per triangle
+        self.black = ~np.any(self.albedo > 0.0, axis=0)
+
+
+def trace_lambertian(tr: Transport, o, d) -> None:
+    """Trace SoA camera rays ``o, d`` (3, n) into ``tr.radiance``."""
+    tracer, stream = tr.tracer, tr.stream
+    lt = _Tables(tr)
+    dt = tracer.dtype
+    frame9 = lt.frame9.astype(dt)
+    state = PathState(o, d, dtype=dt)
+    k = 0
+    while state.n and k < tr.limit:
+        k += 1
+        t, prim = tracer.closest_soa(state.o, state.d)
+        t = t.astype(dt, copy=False)
+        tr.rays += state.n
+        if prim.min() < 0:                 # drop the rays that left the scene (no environment)
+            keep = np.flatnonzero(prim >= 0)
+            if keep.size == 0:
+                break
+            state.take(keep)
+            t, prim = np.take(t, keep), np.take(prim, keep)
+        m = state.n
+        p = state.d * t
+        p += state.o
+        tr.hit_emission(k, state, p, prim)
+        if k >= tr.limit:
+            break
+        frame = np.take(frame9, prim, axis=1)
+        fs, fn, ft = frame[0:3], frame[3:6], frame[6:9]
+        sgn = np.sign(dot(state.d, fn))
+        np.negative(sgn, out=sgn)          # sign(wo . n_g); 0 (grazing) gives f = 0
+        if tr.nee and k + 1 <= tr.limit:
+            _next_event(tr, lt, state, k, p, fn, sgn, prim)
+        if k + 1 > tr.limit or (k + 1 == tr.limit and not tr.bsdf_hits):
+            break
+        ub = stream.vertex(k, BSDF, 2, state.idx)
+        x, y, z = _square_to_cosine_hemisphere_unchecked(ub[0], ub[1], np.float32)
+        pdf = y * (1.0 / np.pi)
+        ok = y > 0.0
+        ok &= sgn != 0.0
+        y *= sgn
+        beta = state.beta
+        beta *= np.take(lt.albedo, prim, axis=1)
+        beta *= ok
+        wi = np.multiply(fs, x, out=state.d)        # d is not needed any more
+        wi += fn * y
+        wi += ft * z
+        alive = roulette(tr, state, k, np.ones(m, dtype=bool))
+        # leave on wi's side of the surface: sign(wi . n_g) = sgn for a valid sample
+        np.multiply(fn, sgn * tr.eps, out=state.o)
+        state.o[...] += p
+        state.prev_pdf[...] = pdf
+        if not alive.all():
+            state.take(np.flatnonzero(alive))
+
+
+def _next_event(tr: Transport, lt: _Tables, state: PathState, k, p, fn, sgn, prim) -> None:
+    """NEE: ``beta (albedo / pi) Le cos_i w_light / p_light`` over unoccluded
+    samples, with ``p_bsdf = cos_i / pi``."""
+    idx = state.idx
+    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, tr.stream.vertex(k, LIGHT, 2, idx), None)
+    cos_i = dot(w, fn)
+    cos_i *= sgn                            # local wi.y in the flipped frame
+    ok = cos_i > 0.0
+    ok &= pdf_l > 0.0
+    ok &= ~np.take(lt.black, prim)
+    go = np.flatnonzero(ok)
+    if go.size == 0:
+        return
+    cg, plg, pg = np.take(cos_i, go), np.take(pdf_l, go), np.take(prim, go)
+    scale = cg / plg
+    if tr.mis:
+        scale *= tr.weight_fn(plg, cg * (1.0 / np.pi))
+    contrib = np.take(state.beta, go, 1)
+    contrib *= np.take(lt.f_le, pg, 1)
+    contrib *= scale
+    side = np.take(sgn, go)
+    origin, d_shadow, tmax = shadow_rays(np.take(p, go, 1), np.take(fn, go, 1), side, np.take(w, go, 1),
+                                         np.take(dist, go), tr.eps)
+    keys = tr.tracer.shadow_keys(pg, side, np.zeros(go.size, dtype=np.int64))
+    blocked = tr.tracer.occluded_soa(origin, d_shadow, tmax, keys)
+    vis = np.flatnonzero(~blocked)
+    tr.add(np.take(idx, np.take(go, vis)), np.take(contrib, vis, 1))
+    tr.rays += int(go.size)

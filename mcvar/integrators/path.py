@@ -1,0 +1,349 @@
+"""Path tracing and one-bounce direct lighting: ``path``, ``path_bsdf``,
+``direct``, ``direct_light``, ``direct_bsdf`` (lecture: 'Previous Methods',
+'Direct vs Indirect Illumination', 'Multiple Importance Sampling').
+
+=================  ==========================================================
+``direct``         one-bounce direct lighting, light sampling and BSDF
+                   sampling combined by MIS (``heuristic``: power or balance)
+``direct_light``   one-bounce direct lighting by light sampling (emitters
+                   seen through a delta lobe, which light sampling cannot
+                   draw, by BSDF sampling: the only strategy that can)
+``direct_bsdf``    one-bounce direct lighting by BSDF sampling only
+``path``           path tracing with next-event estimation and MIS ('backward
+                   path tracing + connect to light'); Russian roulette when
+                   ``max_depth`` is None (unbiased), fixed depth otherwise
+                   (biased: longer paths are missing)
+``path_bsdf``      path tracing that finds emitters only by chance ('backward
+                   path tracing': fails for point lights, noisy for small ones)
+=================  ==========================================================
+
+Depth convention (CORNELL.md): a path of ``k`` segments has depth ``k``;
+``max_depth = 1`` shows emitters seen directly, ``2`` adds direct
+illumination, ``3`` one indirect bounce, and so on. The ``direct*``
+methods are depth 2.
+
+Two loops run these estimators: the general one here (any material, sorted
+by material each bounce, BSDF method calls) and the Lambertian kernel of
+:mod:`mcvar.integrators.lambertian` (the same estimator written out for
+scenes of Lambertian triangles and one quad light). The option
+``kernel='auto'`` picks the Lambertian kernel where the scene allows it;
+``'general'`` and ``'lambertian'`` force one (``'lambertian'`` on a scene
+it cannot run is a ``ValueError`` naming what the scene lacks).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+
+from .._validation import as_rng, check_choice
+from ..estimators import balance_heuristic, power_heuristic
+from ..tracer import Tracer
+from .emitters import Emitters
+from .film import BatchJob, BatchResult, camera_result
+from .lambertian import trace_lambertian
+from .registry import Method, register
+from .state import (RR_MAX_DEPTH, PathState, SceneTables, Transport, dot, roulette, shadow_rays)
+from .stream import BSDF, CAMERA_DIMS, LIGHT, LIGHT_SELECT, SampleStream
+
+__all__ = ["HEURISTICS", "KERNELS", "trace_paths", "trace_camera_paths"]
+
+#: MIS heuristics by name.
+HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
+#: Values of the ``kernel`` option.
+KERNELS = ("auto", "general", "lambertian")
+
+
+@dataclass(frozen=True)
+class _Mode:
+    nee: bool           # connect to lights (next-event estimation)
+    bsdf_hits: bool     # count emission found by BSDF sampling after the first segment
+    mis: bool           # weight the two strategies by the heuristic (else weight 1)
+    depth: int | None   # the method's own depth (direct*: 2)
+
+
+_MODES = {
+    "direct": _Mode(True, True, True, 2),
+    "direct_light": _Mode(True, False, False, 2),
+    "direct_bsdf": _Mode(False, True, False, 2),
+    "path": _Mode(True, True, True, None),
+    "path_bsdf": _Mode(False, True, False, None),
+}
+
+
+def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_depth: int | None = None,
+                heuristic: str = "power", rng=None, tracer: Tracer | None = None, kernel: str = "auto"):
+    """Radiance carried back along each camera ray: the wavefront core.
+
+    Parameters
+    ----------
+    scene : Scene
+    origins, directions : ndarray, shape (n, 3)
+        Camera rays (unit directions).
+    u : ndarray, shape (n, D), or None
+        The paths' sample streams *after* the camera columns: column
+        ``6 (k - 1) + j`` is dimension ``j`` of vertex ``k``
+        (:mod:`mcvar.integrators.stream`: light point 0-1, BSDF 2-3,
+        roulette 4, emitter choice 5). Columns beyond ``D`` come from
+        ``rng``; with ``D >= 6 (max_depth - 1)`` a path uses no ``rng`` at
+        all: it is a pure function of its row of ``u``.
+    integrator : str
+        ``path``, ``path_bsdf``, ``direct``, ``direct_light`` or ``direct_bsdf``.
+    max_depth : int or None
+        Maximum number of path segments; None: Russian roulette.
+    heuristic : {'power', 'balance'}
+    rng : None, int, SeedSequence or Generator
+    tracer : Tracer, optional
+        Reuse a tracer (its precision); default float32.
+    kernel : {'auto', 'general', 'lambertian'}
+
+    Returns
+    -------
+    radiance : ndarray, shape (n, 3), float64
+    rays : int
+        Rays traced (including the camera rays and shadow rays).
+
+    Notes
+    -----
+    At vertex ``x_k`` (hit by segment ``k``) with throughput ``beta``:
+
+    * emission ``Le(x_k -> x_{k-1})`` is added with weight 1 for ``k = 1``
+      or after a delta lobe (decided *per sample* by the mask of
+      ``sample(..., return_delta=True)``: a layered material such as a smooth
+      :class:`mcvar.bsdf.Plastic` has both kinds), else with the MIS weight
+      ``w(p_bsdf, p_light)`` (0 for ``direct_light``);
+    * NEE (if ``k + 1 <= max_depth``): an emitter point drawn with density
+      ``p_light`` (area density converted to solid angle,
+      ``p_A r^2 / |cos theta_l|``), one shadow ray, adding
+      ``beta f cos Le w(p_light, p_bsdf) / p_light`` (``f`` and ``p_bsdf``
+      are the non-delta part: ``eval`` and ``pdf`` omit delta lobes);
+    * the BSDF is sampled, ``beta *= f cos / p_bsdf``; with Russian roulette
+      a path survives with ``q = min(0.95, max(beta))`` and ``beta /= q``.
+
+    The shading normal of two-sided materials is flipped to face ``wo``
+    before the BSDF is called (local frame: normal +y). This is the one-sample
+    MIS estimator of Veach and Guibas [1]_ (eq. 8); with ``w = 1`` for one
+    strategy and 0 for the other it reduces to that single strategy.
+
+    References
+    ----------
+    .. [1] E. Veach, L. J. Guibas, "Optimally Combining Sampling Techniques for
+       Monte Carlo Rendering", SIGGRAPH 1995.
+    .. [2] M. Pharr, W. Jakob, G. Humphreys, "Physically Based Rendering:
+       From Theory to Implementation", 4th ed., MIT Press 2023, ch. 13.
+    """
+    check_choice(integrator, "integrator", tuple(_MODES))
+    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
+    check_choice(kernel, "kernel", KERNELS)
+    rng = as_rng(rng)
+    tracer = tracer if tracer is not None else Tracer(scene)
+    stream = SampleStream(None if u is None else np.asarray(u, dtype=np.float64), rng, camera=False)
+    return _trace(scene, tracer, np.asarray(origins, dtype=np.float64).T,
+                  np.asarray(directions, dtype=np.float64).T, stream, integrator, max_depth, heuristic, kernel)
+
+
+def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_depth: int | None = None,
+                       heuristic: str = "power", rng=None, tracer: Tracer | None = None,
+                       kernel: str = "auto"):
+    """Radiance of camera paths through ``pixel`` given their whole sample vectors ``u``.
+
+    ``u`` (n, D): columns 0-1 the position inside the pixel, then the
+    vertex columns of :func:`trace_paths`. With ``D >= stream_dim(max_depth)``
+    (:func:`mcvar.integrators.stream.stream_dim`) each path is a pure
+    function of ``(pixel, u)``: the primary sample space of Metropolis
+    light transport. Returns ``(radiance (n, 3), rays)``.
+    """
+    check_choice(integrator, "integrator", tuple(_MODES))
+    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
+    check_choice(kernel, "kernel", KERNELS)
+    u = np.asarray(u, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] < CAMERA_DIMS:
+        raise ValueError(f"u must have shape (n, D) with D >= {CAMERA_DIMS}; got {u.shape}")
+    tracer = tracer if tracer is not None else Tracer(scene)
+    d = scene.camera.ray_directions_soa(res, pixel, u[:, :CAMERA_DIMS])
+    o = np.broadcast_to(scene.camera.position[:, None], d.shape)
+    stream = SampleStream(u, as_rng(rng))
+    return _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel)
+
+
+def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel):
+    """The loops' common entry: rays SoA (3, n)."""
+    mode = _MODES[integrator]
+    if mode.depth is not None:
+        max_depth = mode.depth
+    emitters = Emitters(scene)
+    tables = SceneTables(scene, tracer, emitters)
+    if kernel == "lambertian":
+        missing = tables.lambertian_missing(emitters)
+        if missing:
+            raise ValueError(f"kernel='lambertian' needs {missing}; scene {scene.name!r} does not have it")
+    limit = RR_MAX_DEPTH if max_depth is None else max_depth
+    tr = Transport(scene, tracer, emitters, tables, o.shape[1], nee=mode.nee, bsdf_hits=mode.bsdf_hits,
+                   mis=mode.mis, weight_fn=HEURISTICS[heuristic], limit=limit, roulette=max_depth is None,
+                   stream=stream)
+    if tables.lambertian and kernel != "general":
+        trace_lambertian(tr, o, d)
+    else:
+        _trace_general(tr, o, d)
+    return np.ascontiguousarray(tr.radiance.T), tr.rays
+
+
+def _trace_general(tr: Transport, o, d) -> None:
+    """The general wavefront loop (any material); see :func:`trace_paths`."""
+    tracer, tables, stream = tr.tracer, tr.tables, tr.stream
+    materials = tables.materials
+    state = PathState(o, d)
+    k = 0
+    while state.n and k < tr.limit:
+        k += 1
+        n = state.n
+        t, prim = tracer.closest_soa(state.o, state.d)
+        tr.rays += n
+        mat = np.take(tables.mat_code, prim)
+        # -- rays that left the scene: environment emission
+        if tr.emitters.env is not None:
+            tr.miss_emission(k, state, np.flatnonzero(prim < 0))
+        # -- sort the hits by material (misses last) and drop the misses
+        order = np.argsort(mat, kind="stable")
+        counts = np.bincount(mat, minlength=tables.n_mat + 1)
+        m = n - int(counts[-1])
+        if m == 0:
+            break
+        order = order[:m]
+        state.take(order)
+        t, prim, mat = np.take(t, order), np.take(prim, order), np.take(mat, order)
+        ends = np.cumsum(counts[:-1])
+        groups = [(mi, int(ends[mi] - counts[mi]), int(ends[mi])) for mi in range(tables.n_mat) if counts[mi]]
+        p = state.d * t
+        p += state.o
+        # -- emission at the hit
+        tr.hit_emission(k, state, p, prim)
+        if k >= tr.limit:
+            break
+        # -- shading frame: flip two-sided materials' normal towards wo
+        ng = tables.geometric_normals(tracer, prim, p)
+        wo = -state.d
+        flip = np.take(tables.flips, mat) & (dot(ng, wo) < 0.0)
+        frame = tables.frames(prim, ng, flip)
+        fs, fn, ft = frame
+        wo_l = np.stack([dot(wo, fs), dot(wo, fn), dot(wo, ft)])
+        # -- next-event estimation (adds paths of k + 1 segments)
+        if tr.nee and k + 1 <= tr.limit:
+            _next_event(tr, state, k, groups, p, ng, frame, wo_l, prim)
+        # -- continue the path by BSDF sampling?
+        if k + 1 > tr.limit or (k + 1 == tr.limit and not tr.bsdf_hits):
+            break
+        ub = stream.vertex(k, BSDF, 2, state.idx)
+        wi_l = np.empty((3, m))
+        weight = np.empty((3, m))
+        pdf = np.empty(m)
+        for mi, a, b in groups:
+            wi_g, weight_g, pdf_g, delta_g = materials[mi].sample(wo_l[:, a:b].T, ub[:, a:b].T,
+                                                                  return_delta=True)
+            wi_l[:, a:b] = wi_g.T
+            weight[:, a:b] = weight_g.T
+            # per sample: a delta lobe's emission gets MIS weight 1 (pdf inf)
+            pdf[a:b] = np.where(delta_g, np.inf, pdf_g)
+        state.beta[...] *= weight
+        wi = fs * wi_l[0]
+        wi += fn * wi_l[1]
+        wi += ft * wi_l[2]
+        alive = roulette(tr, state, k, np.ones(m, dtype=bool))
+        side = np.sign(dot(wi, ng))
+        side *= tr.eps
+        np.multiply(ng, side, out=state.o)
+        state.o[...] += p
+        state.d[...] = wi
+        state.prev_pdf[...] = pdf
+        if not alive.all():
+            state.take(np.flatnonzero(alive))
+
+
+def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, prim) -> None:
+    """Connect every shading point to an emitter; add the unoccluded contributions.
+
+    SoA arrays (3, m), rows sorted by material (``groups``: material, start, end).
+    """
+    m = p.shape[1]
+    idx = state.idx
+    u = tr.stream.vertex(k, LIGHT, 2, idx)
+    u_sel = tr.stream.vertex(k, LIGHT_SELECT, 1, idx)[0] if tr.emitters.n_emitters > 1 else None
+    w, dist, le, pdf_l, light = tr.emitters.sample_li(p, u, u_sel)
+    fs, fn, ft = frame
+    wi_l = np.stack([dot(w, fs), dot(w, fn), dot(w, ft)])
+    f = np.zeros((3, m))
+    pdf_b = np.zeros(m)
+    materials = tr.tables.materials
+    for mi, a, b in groups:
+        if tr.tables.all_delta[mi]:
+            continue
+        wo_g, wi_g = wo_l[:, a:b].T, wi_l[:, a:b].T
+        f[:, a:b] = materials[mi].eval(wo_g, wi_g).T
+        if tr.mis:
+            pdf_b[a:b] = materials[mi].pdf(wo_g, wi_g)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.abs(wi_l[1]) / np.where(pdf_l > 0, pdf_l, np.inf)
+    if tr.mis:
+        scale *= tr.weight_fn(pdf_l, pdf_b)
+    contrib = state.beta * f
+    contrib *= le
+    contrib *= scale
+    go = np.flatnonzero(contrib.max(axis=0) > 0.0)
+    if go.size == 0:
+        return
+    ngo = np.take(ng, go, 1)
+    wgo = np.take(w, go, 1)
+    side = np.sign(dot(wgo, ngo))
+    origin, d_shadow, tmax = shadow_rays(np.take(p, go, 1), ngo, side, wgo, np.take(dist, go), tr.eps)
+    keys = tr.tracer.shadow_keys(np.take(prim, go), side, np.take(light, go))
+    blocked = tr.tracer.occluded_soa(origin, d_shadow, tmax, keys)
+    vis = go[~blocked]
+    tr.add(np.take(idx, vis), np.take(contrib, vis, 1))
+    tr.rays += int(go.size)
+
+
+# ---------------------------------------------------------------------------
+# The registered methods
+
+def _camera_rays(job: BatchJob):
+    """Pixel index, SoA camera rays and the sample stream of a camera batch."""
+    n_pix, spp = job.n_pixels, job.spp
+    pixel = np.repeat(np.arange(n_pix), spp)
+    stream = SampleStream(job.u, job.rng)
+    offsets = stream.columns(0, CAMERA_DIMS, np.arange(n_pix * spp))
+    d = job.scene.camera.ray_directions_soa(job.res, pixel, offsets.T)
+    o = np.broadcast_to(job.scene.camera.position[:, None], d.shape)
+    return pixel, o, d, stream
+
+
+def run_path_batch(name: str, job: BatchJob) -> BatchResult:
+    """``run_batch`` of the path-tracing and direct-lighting methods (``partial(run_path_batch, name)``)."""
+    _, o, d, stream = _camera_rays(job)
+    radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.max_depth, job.heuristic,
+                            job.options["kernel"])
+    return camera_result(job, radiance, rays, name)
+
+
+def _check_kernel(scene, options) -> None:
+    check_choice(options["kernel"], "kernel", KERNELS)
+    if options["kernel"] == "lambertian":
+        emitters = Emitters(scene)
+        missing = SceneTables(scene, Tracer(scene), emitters).lambertian_missing(emitters)
+        if missing:
+            raise ValueError(f"kernel='lambertian' needs {missing}; scene {scene.name!r} does not have it")
+
+
+_SUMMARIES = {
+    "path": "path tracing, next-event estimation + MIS; Russian roulette when max_depth is None",
+    "path_bsdf": "path tracing that finds emitters only by BSDF sampling",
+    "direct": "one-bounce direct lighting, light and BSDF sampling combined by MIS",
+    "direct_light": "one-bounce direct lighting by light sampling",
+    "direct_bsdf": "one-bounce direct lighting by BSDF sampling",
+}
+
+for _name, _mode in _MODES.items():
+    register(Method(_name, "camera", partial(run_path_batch, _name), _SUMMARIES[_name],
+                    options={"kernel": "auto"}, check_scene=_check_kernel,
+                    lecture=("yes", "yes") if _mode.depth is None else ("no", "no"),
+                    fixed_depth=_mode.depth))

@@ -1,0 +1,115 @@
+"""The registry of rendering methods: one :class:`Method` per name.
+
+A method is one module that builds a :class:`Method` and calls
+:func:`register` once at import; :func:`mcvar.integrators.render`, the CLI
+and the contract suite (``tests/test_integrator_contract.py``) find it in
+:data:`METHODS`. See docs/integrators.md, 'Adding a method'.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+__all__ = ["KINDS", "METHODS", "Method", "register", "get_method"]
+
+#: The kinds of work a method does (how its batches reach the film).
+KINDS = ("camera", "splat", "chain", "first_hit")
+
+
+@dataclass(frozen=True)
+class Method:
+    """A rendering method: what :func:`~mcvar.integrators.render` needs to run it.
+
+    Attributes
+    ----------
+    name : str
+        What ``render(..., integrator=name)`` and ``mcvar render --integrator`` take.
+    kind : {'camera', 'splat', 'chain', 'first_hit'}
+        ``camera``: samples per pixel through the camera (per-sample variance
+        per pixel); ``splat``: contributions land at arbitrary pixels (light
+        tracing, BDPT's t = 1), variance from independent batches; ``chain``:
+        Markov chains (PSSMLT), variance from independent batches;
+        ``first_hit``: one ray per sample, no transport (AOVs, raster).
+    run_batch : callable
+        ``run_batch(job: BatchJob) -> BatchResult``; a module-level function
+        (picklable, so that process pools and Dask can run it).
+    summary : str
+        One line for the docs and the CLI help.
+    options : mapping
+        Extra keyword options the method takes, with their defaults:
+        ``render(scene, integrator=name, **options)``. Any other option is a
+        ``ValueError`` naming it and the accepted ones.
+    prepare : callable or None
+        ``prepare(scene, options, rng) -> object`` run once per render in the
+        parent (a photon map, a radiosity solve); the result (picklable) is
+        handed to every batch as ``job.prepared``.
+    check_scene : callable or None
+        ``check_scene(scene, options)`` raises ``ValueError`` naming what the
+        method cannot handle in ``scene`` (the contract suite accepts exactly
+        that as a documented skip).
+    uses_max_depth : bool
+        False: ``max_depth`` does not apply (a ``ValueError`` if given).
+    lecture : tuple or None
+        The lecture's 'Rendering Algorithm Chart' claim ``(consistent, unbiased)``,
+        e.g. ``("yes", "yes")``.
+    fixed_depth : int or None
+        The method's own depth (the ``direct*`` methods: 2); ``max_depth``
+        must then be None or equal to it. (An addition to the API of
+        /work/status/API.md, default None.)
+    """
+
+    name: str
+    kind: str
+    run_batch: Callable
+    summary: str
+    options: Mapping = field(default_factory=dict)
+    prepare: Callable | None = None
+    check_scene: Callable | None = None
+    uses_max_depth: bool = True
+    lecture: tuple | None = None
+    fixed_depth: int | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.isidentifier():
+            raise ValueError(f"Method.name must be an identifier-like string; got {self.name!r}")
+        if self.kind not in KINDS:
+            raise ValueError(f"Method.kind must be one of {KINDS}; got {self.kind!r}")
+        if not callable(self.run_batch):
+            raise TypeError(f"Method.run_batch must be callable; got {type(self.run_batch).__name__}")
+        for key in ("prepare", "check_scene"):
+            value = getattr(self, key)
+            if value is not None and not callable(value):
+                raise TypeError(f"Method.{key} must be callable or None; got {type(value).__name__}")
+        object.__setattr__(self, "options", dict(self.options))
+
+    def resolve_options(self, given: Mapping) -> dict:
+        """The method's options: defaults updated with ``given``; an unknown key is a ValueError."""
+        unknown = [k for k in given if k not in self.options]
+        if unknown:
+            accepted = ", ".join(self.options) if self.options else "none"
+            raise ValueError(f"integrator {self.name!r} does not take the option(s) "
+                             f"{', '.join(map(repr, unknown))}; it accepts: {accepted}")
+        return {**self.options, **given}
+
+
+#: Registered methods by name, in registration order.
+METHODS: dict[str, Method] = {}
+
+
+def register(method: Method) -> Method:
+    """Add ``method`` to :data:`METHODS` (a duplicate name is a ``ValueError``); return it."""
+    if not isinstance(method, Method):
+        raise TypeError(f"register takes a Method; got {type(method).__name__}")
+    if method.name in METHODS:
+        raise ValueError(f"a method named {method.name!r} is already registered")
+    METHODS[method.name] = method
+    return method
+
+
+def get_method(name) -> Method:
+    """The registered method called ``name`` (ValueError listing the known ones otherwise)."""
+    if isinstance(name, Method):
+        return name
+    if not isinstance(name, str) or name not in METHODS:
+        raise ValueError(f"integrator must be one of {tuple(METHODS)}; got {name!r}")
+    return METHODS[name]

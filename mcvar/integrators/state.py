@@ -1,0 +1,298 @@
+"""The wavefront: per-path state, per-scene shading tables, and what every loop shares.
+
+* :class:`PathState`: the live paths of a wavefront as one structure-of-arrays
+  block (origin, direction, throughput ``beta``, the previous bounce's pdf)
+  plus the paths' indices, so that compaction is one ``np.take``.
+* :class:`SceneTables`: per-scene constants of the shading loop (material
+  codes for the sort, shading frames of triangles, which materials flip).
+* :class:`Transport`: one trace's settings (which strategies, MIS
+  heuristic, depth limit) and its radiance accumulator; adds emission found
+  by rays with its MIS weight.
+* :func:`shadow_rays`, :func:`roulette`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..bsdf import Lambertian
+from ..geometry import Frame
+from .emitters import Emitters
+from .stream import ROULETTE, SampleStream
+
+__all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot",
+           "RR_START_DEPTH", "RR_MAX_DEPTH"]
+
+#: Russian roulette starts once a path has this many segments.
+RR_START_DEPTH = 3
+#: Safety cap on the number of segments under Russian roulette: a path
+#: survives each step with probability <= 0.95, so reaching it has
+#: probability <= 0.95^1021 < 1e-22 (negligible bias).
+RR_MAX_DEPTH = 1024
+
+
+def dot(a, b):
+    """Row-wise dot products of SoA vectors (3, n) -> (n,)."""
+    return np.einsum("ij,ij->j", a, b)
+
+
+class PathState:
+    """The live paths of a wavefront, structure-of-arrays.
+
+    One ``(10, n)`` block holds per path: origin (rows 0-2), direction
+    (3-5), throughput ``beta`` (6-8) and the solid-angle pdf of the bounce
+    that made the current ray (9; ``inf`` for a camera ray or a delta bounce,
+    whose emission gets MIS weight 1); ``idx`` is each path's row in the
+    output. Compaction (:meth:`take`) is one ``np.take`` of the block.
+
+    Parameters
+    ----------
+    origins, directions : array_like, shape (3, n)
+    dtype : numpy dtype
+        float64 for the general loop; the Lambertian loop keeps the block in
+        the ray geometry's precision (radiance is accumulated in float64).
+    """
+
+    __slots__ = ("data", "idx")
+
+    def __init__(self, origins, directions, dtype=np.float64):
+        n = np.shape(origins)[1]
+        self.data = np.empty((10, n), dtype=dtype)
+        self.data[0:3] = origins
+        self.data[3:6] = directions
+        self.data[6:9] = 1.0
+        self.data[9] = np.inf
+        self.idx = np.arange(n)
+
+    @property
+    def n(self) -> int:
+        return self.idx.shape[0]
+
+    @property
+    def o(self):
+        return self.data[0:3]
+
+    @property
+    def d(self):
+        return self.data[3:6]
+
+    @property
+    def beta(self):
+        return self.data[6:9]
+
+    @property
+    def prev_pdf(self):
+        return self.data[9]
+
+    def take(self, rows) -> None:
+        """Keep (and reorder to) the paths at positions ``rows``."""
+        self.data = np.take(self.data, rows, axis=1)
+        self.idx = np.take(self.idx, rows)
+
+
+def _flips(material) -> bool:
+    """Whether the caller flips the shading normal towards ``wo`` (two-sided):
+    every material except those light may cross (``BSDF.transmissive``), which
+    tell inside from outside by the sign of ``wo.y``."""
+    return not getattr(material, "transmissive", False)
+
+
+class SceneTables:
+    """Per-scene constants of the shading loop (built once per trace).
+
+    Materials are dispatched on contiguous slices: the rays are sorted by
+    material once per bounce (a stable sort of small integer codes), so
+    every material is called once per bounce on a slice. Triangles have
+    constant normals: their shading frames, for both orientations, are a
+    table indexed by ``2 prim + flipped``.
+
+    Attributes
+    ----------
+    lambertian : bool
+        Every material :class:`mcvar.bsdf.Lambertian`, triangles only, one
+        quad light and no environment: the scenes the Lambertian kernel
+        (:mod:`mcvar.integrators.lambertian`) handles.
+    """
+
+    def __init__(self, scene, tracer, emitters: Emitters):
+        self.scene = scene
+        self.materials = scene.materials
+        self.n_mat = len(scene.materials)
+        n_prim = scene.n_triangles + scene.n_spheres
+        code = np.empty(n_prim + 1, dtype=np.int16 if self.n_mat < 32000 else np.int64)
+        code[:n_prim] = scene.prim_material
+        code[n_prim] = self.n_mat                   # prim -1 (a miss) takes the last entry
+        self.mat_code = code
+        self.emits = np.append(np.any(scene.prim_emission > 0, axis=1), False)
+        self.flips = np.array([_flips(m) for m in scene.materials])
+        #: every lobe a Dirac delta: NEE skips the material (per-sample masks decide the rest)
+        self.all_delta = np.array([bool(getattr(m, "is_delta", False)) for m in scene.materials])
+        self.n_tri = scene.n_triangles
+        self.spheres = scene.n_spheres > 0
+        if not self.spheres and self.n_tri:
+            nrm = tracer.triangle_normal
+            both = np.stack([nrm, -nrm], axis=1).reshape(-1, 3)
+            fr = Frame(both)
+            self.frame_s = np.ascontiguousarray(fr.s.T)
+            self.frame_n = np.ascontiguousarray(fr.n.T)
+            self.frame_t = np.ascontiguousarray(fr.t.T)
+        self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
+                           and all(type(m) is Lambertian for m in scene.materials))
+
+    def lambertian_missing(self, emitters: Emitters) -> str | None:
+        """Why the Lambertian kernel cannot run this scene (None if it can)."""
+        scene = self.scene
+        if not emitters.single_quad:
+            return "exactly one quad light and no environment"
+        if self.spheres or not self.n_tri:
+            return "triangles only"
+        bad = [n for n, m in zip(scene.material_names, scene.materials) if type(m) is not Lambertian]
+        if bad:
+            return f"Lambertian materials only (not {', '.join(bad)})"
+        return None
+
+    def geometric_normals(self, tracer, prim, p):
+        """Unit geometric normals (3, m) of primitives ``prim`` at SoA points ``p``."""
+        if not self.spheres:
+            return np.take(tracer.triangle_normal_soa, prim, axis=1)
+        return np.ascontiguousarray(tracer.normals(prim, p.T).T)
+
+    def frames(self, prim, ng, flip):
+        """Shading frames ``(s, n, t)``, SoA (3, m) each, normal flipped where ``flip``."""
+        if not self.spheres:
+            key = 2 * prim + flip
+            return (np.take(self.frame_s, key, axis=1), np.take(self.frame_n, key, axis=1),
+                    np.take(self.frame_t, key, axis=1))
+        fr = Frame(np.where(flip, -ng, ng).T)
+        return fr.s.T, fr.n.T, fr.t.T
+
+
+class Transport:
+    """One trace: the strategies used, the MIS heuristic, the output.
+
+    Parameters
+    ----------
+    scene, tracer, emitters, tables
+        What the loop reads.
+    n : int
+        Number of paths (rows of :attr:`radiance`).
+    nee : bool
+        Connect to emitters (next-event estimation).
+    bsdf_hits : bool
+        Count emission found by BSDF sampling after the first segment.
+    mis : bool
+        Weight the two strategies by ``weight_fn`` (else weight 1 each).
+    weight_fn : callable
+        ``weight_fn(p_this, p_other)`` (power or balance heuristic).
+    limit : int
+        Maximum number of segments.
+    roulette : bool
+        Russian roulette from :data:`RR_START_DEPTH` segments on.
+    stream : SampleStream
+    """
+
+    def __init__(self, scene, tracer, emitters, tables, n, *, nee, bsdf_hits, mis, weight_fn, limit,
+                 roulette, stream: SampleStream):
+        self.scene, self.tracer, self.emitters, self.tables = scene, tracer, emitters, tables
+        self.nee = nee and emitters.n_emitters > 0
+        self.bsdf_hits, self.mis, self.weight_fn = bsdf_hits, mis, weight_fn
+        self.limit, self.roulette, self.stream = limit, roulette, stream
+        self.eps = float(scene.ray_epsilon)
+        self.radiance = np.zeros((3, n))
+        self.rays = 0
+
+    def add(self, rows, value) -> None:
+        """``radiance[:, rows] += value`` for distinct ``rows``, one channel at a
+        time (1-D fancy indexing is several times faster than 2-D)."""
+        for c in range(3):
+            self.radiance[c, rows] += value[c]
+
+    def emission_weight(self, k, prev_pdf, light_pdf):
+        """MIS weight of emission found by the ray of segment ``k`` (BSDF sampling).
+
+        ``prev_pdf``: the pdf of the bounce that made the ray (inf: camera ray
+        or a delta lobe, which light sampling cannot draw); ``light_pdf``: a
+        callable giving the density NEE would have drawn the emitter with.
+        """
+        n = prev_pdf.shape[0]
+        if k == 1:
+            return np.ones(n)
+        delta = np.isinf(prev_pdf)
+        if not self.bsdf_hits:
+            # Light sampling alone cannot draw emission seen through a delta
+            # bounce; emission after a smooth bounce was already counted by NEE.
+            return np.zeros(n)
+        if not (self.nee and self.mis):
+            return np.ones(n)
+        w = self.weight_fn(np.where(delta, 1.0, prev_pdf), light_pdf())
+        return np.where(delta, 1.0, w)
+
+    def hit_emission(self, k, state: PathState, p, prim) -> None:
+        """Add the emission found by the rays of segment ``k`` at their hits ``p`` (SoA)."""
+        lit = np.flatnonzero(np.take(self.tables.emits, prim))
+        if not lit.size:
+            return
+        pl, dl, ol = p[:, lit].T, state.d[:, lit].T, state.o[:, lit].T
+        pl, dl, ol = (np.asarray(a, dtype=np.float64) for a in (pl, dl, ol))
+        pr = prim[lit]
+        le = self.scene.emission(pr, pl, self.tracer.normals(pr, pl), dl)
+        w = self.emission_weight(k, np.asarray(state.prev_pdf[lit], dtype=np.float64),
+                                 lambda: self.emitters.pdf_li(pr, ol, pl))
+        self.add(state.idx[lit], state.beta[:, lit] * le.T * w)
+
+    def miss_emission(self, k, state: PathState, miss) -> None:
+        """Add the environment's radiance along the rays ``miss`` that left the scene."""
+        if self.emitters.env is None or not miss.size:
+            return
+        dm = np.asarray(state.d[:, miss].T, dtype=np.float64)
+        le = self.emitters.env.radiance(dm)
+        w = self.emission_weight(k, np.asarray(state.prev_pdf[miss], dtype=np.float64),
+                                 lambda: self.emitters.environment_pdf(dm))
+        self.add(state.idx[miss], state.beta[:, miss] * le.T * w)
+
+
+def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
+    """Russian roulette after the bounce at vertex ``k``: survive with
+    ``q = min(0.95, max beta)``, ``beta /= q`` (unbiased). Returns the new ``alive`` mask."""
+    beta = state.beta
+    bmax = beta.max(axis=0)
+    alive &= bmax > 0.0
+    if tr.roulette and k >= RR_START_DEPTH:
+        q = np.minimum(bmax, 0.95)
+        u = tr.stream.vertex(k, ROULETTE, 1, state.idx)[0]
+        survive = u < q
+        beta /= np.where(survive, q, 1.0)
+        alive &= survive
+    return alive
+
+
+def shadow_rays(p, ng, side, w, dist, eps):
+    """Shadow rays from shading points ``p`` to light samples ``p + dist * w``.
+
+    SoA arrays ``(3, m)``. The origin is offset by ``eps`` along the geometric
+    normal ``ng`` (on the side ``side`` of the surface) to avoid
+    self-intersection, and the ray is aimed from that *offset* origin at the
+    light sample, stopping ``2 eps`` short of it (samples at infinite
+    ``dist``, from an environment, keep ``w`` and ``tmax = inf``). Aiming along ``w`` from the
+    offset origin instead would end past the light's plane whenever the light
+    is seen at a grazing angle (``cos theta_light < 1/2`` for a surface facing
+    it), so the emitter would occlude its own shadow ray.
+
+    Returns ``(origin, direction, tmax)``.
+    """
+    origin = ng * (eps * side)
+    origin += p
+    if np.isfinite(dist).all():   # area lights only (the common case): fewer passes
+        to_light = w * dist
+        to_light += p
+        to_light -= origin
+        length = np.sqrt(dot(to_light, to_light))
+        to_light /= length
+        length -= 2.0 * eps
+        return origin, to_light, length
+    far = ~np.isfinite(dist)  # environment samples: infinitely far, keep w
+    to_light = w * np.where(far, 1.0, dist)
+    to_light += p
+    to_light -= origin
+    length = np.sqrt(dot(to_light, to_light))
+    direction = np.where(far, w, to_light / length)
+    return origin, direction, np.where(far, np.inf, length - 2.0 * eps)
