@@ -26,8 +26,9 @@ from scipy import stats
 from scipy.ndimage import binary_dilation
 
 from mcvar.integrators import render, trace_paths
-from mcvar.photons import build_photon_map, photon_map_radiance, sppm, visible_points
-from mcvar.radiosity import radiosity
+from mcvar.integrators.photon import build_photon_map, photon_map_radiance, visible_points
+from mcvar.integrators.sppm import sppm
+from mcvar.integrators.radiosity import radiosity
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
 

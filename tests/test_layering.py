@@ -16,7 +16,7 @@ LAYERS = {
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
     "examples": 4,
     "scene": 4, "tracer": 4,
-    "integrators": 5, "radiosity": 5, "photons": 5,
+    "integrators": 5,
     "experiments": 6,
     "plotting": 7, "chart_figure": 7, "report": 7, "sampler_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
@@ -30,7 +30,8 @@ PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
     "testing": ["_domains", "_chi2", "mutants", "__init__"],
-    "integrators": None,  # filled when mcvar/integrators/ becomes a package (issue 10)
+    "integrators": ["registry", "stream", "film", "emitters", "state", "lambertian", "path", "aov",
+                    "radiosity", "photon", "sppm", "driver", "__init__"],
 }
 
 

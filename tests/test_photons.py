@@ -16,7 +16,8 @@ from scipy.ndimage import binary_dilation
 
 from mcvar.bsdf import Lambertian
 from mcvar.integrators import render, trace_paths
-from mcvar.photons import (build_photon_map, photon_map_radiance, sppm, trace_photons, visible_points)
+from mcvar.integrators.photon import build_photon_map, photon_map_radiance, trace_photons, visible_points
+from mcvar.integrators.sppm import sppm
 from mcvar.scene import Camera, Scene, load_scene
 from mcvar.tracer import Tracer
 

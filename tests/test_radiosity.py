@@ -15,7 +15,7 @@ from scipy.ndimage import binary_dilation
 
 from mcvar.bsdf import Lambertian
 from mcvar.integrators import render
-from mcvar.radiosity import (check_diffuse, form_factors, mesh_patches, radiosity, solve_radiosity)
+from mcvar.integrators.radiosity import (check_diffuse, form_factors, mesh_patches, radiosity, solve_radiosity)
 from mcvar.scene import Camera, Scene, load_scene
 from mcvar.tracer import Tracer
 

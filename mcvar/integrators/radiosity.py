@@ -1,4 +1,4 @@
-"""Finite-element radiosity of diffuse scenes (layer 5, beside the integrators).
+"""Finite-element radiosity of diffuse scenes: the registered method ``radiosity``.
 
 The lecture's 'Finite Element Radiosity' slide: "transport light between
 patches in the scene; solve a large linear system for the equilibrium
@@ -63,15 +63,18 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ._validation import as_array, as_rng, check_choice, check_count, check_positive
-from .bsdf import Lambertian
-from .geometry import Frame
-from .scene import Scene
-from .tracer import Tracer
-from .warps import square_to_cosine_hemisphere, square_to_uniform_triangle
+from .._validation import as_array, as_rng, check_choice, check_count, check_positive
+from ..bsdf import Lambertian
+from ..geometry import Frame
+from ..scene import Scene
+from ..tracer import Tracer
+from ..warps import square_to_cosine_hemisphere, square_to_uniform_triangle
+from .film import BatchJob, BatchResult, camera_result
+from .registry import Method, register
+from .stream import CAMERA_DIMS, SampleStream
 
 __all__ = ["Patches", "FormFactors", "Radiosity", "check_diffuse", "mesh_patches",
-           "form_factors", "solve_radiosity", "radiosity", "SOLVERS"]
+           "form_factors", "solve_radiosity", "radiosity", "SOLVERS", "run_radiosity_batch"]
 
 #: Linear solvers of :func:`solve_radiosity`.
 SOLVERS = ("jacobi", "direct")
@@ -236,17 +239,6 @@ def _barycentrics(scene: Scene, prim, points):
     return np.stack([(d22 * v1 - d12 * v2) / det, (d11 * v2 - d12 * v1) / det], axis=-1)
 
 
-def _emission_at(scene: Scene, prim, points, side_sign):
-    """Emitted radiance of triangles ``prim`` at ``points`` towards side ``side_sign`` (+1 front)."""
-    le = np.take(scene.prim_emission, prim, axis=0)
-    ok = (side_sign > 0) | np.take(scene.prim_two_sided_emission, prim)
-    le = np.where(ok[:, None], le, 0.0)
-    if scene.checker_period is not None:
-        p = scene.checker_period
-        le = le * ((np.floor(points[:, 0] / p) + np.floor(points[:, 2] / p)) % 2.0)[:, None]
-    return le
-
-
 # ---------------------------------------------------------------------------
 # Form factors
 
@@ -385,7 +377,7 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         nrm = patches.normal[patch] * sign[:, None]
         d = Frame(nrm).to_world(square_to_cosine_hemisphere(rng.random((s.size, 2))))
         tri = patches.triangle[patch]
-        le = _emission_at(scene, tri, x, sign)
+        le = scene.emission(tri, x, patches.normal[patch], -nrm)   # as a ray arriving on that side
         for ch in range(3):
             emission[side, ch] = np.pi * np.bincount(s - side[0], le[:, ch], side.size) / per_side[side]
         hit = tracer.intersect(x + eps * nrm, d)
@@ -530,8 +522,8 @@ class Radiosity:
         j = self.patches.locate(prim, _barycentrics(scene, prim, y))
         back = np.einsum("ij,ij->i", d[ok], tracer.triangle_normal[prim]) > 0.0
         side = 2 * j + back
-        sign = np.where(back, -1.0, 1.0)
-        out[ok] = _emission_at(scene, prim, y, sign) + self.reflectance[side] / np.pi * self.irradiance[side]
+        n_g = tracer.triangle_normal[prim]
+        out[ok] = scene.emission(prim, y, n_g, d[ok]) + self.reflectance[side] / np.pi * self.irradiance[side]
         return out
 
 
@@ -573,3 +565,43 @@ def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 25
     h = f @ b + ff.env_irradiance
     return Radiosity(patches=patches, form_factors=ff, reflectance=rho, radiosity=b, irradiance=h,
                      iterations=its, residual=res, seconds=time.perf_counter() - start)
+
+
+# ---------------------------------------------------------------------------
+# The registered method
+
+def _radiosity_options(options) -> None:
+    check_positive(options["patch_size"], "patch_size")
+    check_count(options["rays_per_side"], "rays_per_side")
+    check_count(options["emitter_rays"], "emitter_rays")
+    check_choice(options["solver"], "solver", SOLVERS)
+
+
+def _check_radiosity(scene, options) -> None:
+    """``check_scene`` of ``radiosity``: Lambertian triangles only, valid options."""
+    _radiosity_options(options)
+    check_diffuse(scene)
+
+
+def _prepare_radiosity(scene, options, rng) -> Radiosity:
+    """``prepare`` of ``radiosity``: the whole solve, once per render (the parent process)."""
+    return radiosity(scene, patch_size=options["patch_size"], rays_per_side=options["rays_per_side"],
+                     emitter_rays=options["emitter_rays"], solver=options["solver"], rng=rng)
+
+
+def run_radiosity_batch(job: BatchJob) -> BatchResult:
+    """``run_batch`` of ``radiosity``: look the solved radiosity up at every camera ray's first hit."""
+    n = job.n_pixels * job.spp
+    rows = np.arange(n)
+    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
+    offsets = SampleStream(job.u, job.rng).columns(0, CAMERA_DIMS, rows)
+    d = job.scene.camera.ray_directions(job.res, pixel, offsets.T)
+    o = np.ascontiguousarray(np.broadcast_to(job.scene.camera.position, d.shape))
+    return camera_result(job, job.prepared.radiance(job.scene, job.tracer, o, d), n, "radiosity")
+
+
+register(Method(
+    "radiosity", "first_hit", run_radiosity_batch,
+    "finite-element radiosity: patches, ray-cast form factors, (I - rho F) B = E, flat lookup at the first hit",
+    options=dict(patch_size=40.0, rays_per_side=256, emitter_rays=1 << 20, solver="jacobi"),
+    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no")))

@@ -1,10 +1,11 @@
-"""Photon mapping and stochastic progressive photon mapping (layer 5).
+"""Photon mapping: the registered method ``photon``, and the parts SPPM shares.
 
 The lecture's 'Photon Mapping' slide: "trace particles from the light,
 deposit 'photons' in a KD-tree". Two estimators built on the same parts:
 
-* :func:`trace_photons` emits photons from the area lights (a uniform point
-  and a cosine-weighted direction, power ``pi A Le / (p_light N)`` each),
+* :func:`trace_photons` emits photons from the area lights (a light chosen
+  uniformly, a uniform point and a cosine-weighted direction:
+  :func:`~mcvar.integrators.emitters.sample_le`; power ``pi L A Le / N`` each),
   follows them through the scene with the BSDFs' ``sample`` (Russian
   roulette after :data:`RR_START_DEPTH` segments keeps the power per photon
   about constant), and yields, batch by batch, a photon at every non-delta
@@ -21,7 +22,7 @@ deposit 'photons' in a KD-tree". Two estimators built on the same parts:
   averages irradiance over its area (blurred shadows and corners) and
   gathers photons from neighbouring surfaces (light leaking); at fixed ``k``
   or ``radius`` not even consistent in the number of camera samples.
-* :func:`sppm` (Hachisuka and Jensen 2009): per iteration one visible point
+* :func:`~mcvar.integrators.sppm.sppm` (Hachisuka and Jensen 2009): per iteration one visible point
   per pixel and one photon pass; every pixel keeps a radius ``R``, a photon
   count ``N`` and an accumulated flux ``tau``, and after ``M`` new photons
   ``N' = N + alpha M``, ``R' = R sqrt(N' / (N + M))``,
@@ -51,15 +52,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._validation import as_rng, check_count, check_positive
-from .geometry import Frame
-from .scene import Scene
-from .tracer import Tracer
-from .warps import square_to_cosine_hemisphere, square_to_uniform_parallelogram
+from .._validation import as_rng, check_count, check_positive
+from ..geometry import Frame
+from ..scene import Scene
+from ..tracer import Tracer
+from .emitters import sample_le
+from .film import BatchJob, BatchResult, camera_result
+from .registry import Method, register
+from .stream import CAMERA_DIMS, SampleStream
 
 __all__ = ["PhotonBatch", "PhotonMap", "VisiblePoints", "trace_photons", "build_photon_map",
-           "visible_points", "photon_map_radiance", "sppm", "SPPMResult", "check_photon_scene", "default_radius",
-           "PHOTONS_PER_BATCH"]
+           "visible_points", "photon_map_radiance", "check_photon_scene", "check_photon_method_scene",
+           "PHOTONS_PER_BATCH", "run_photon_batch"]
 
 #: Photons emitted per batch (memory bound of tracing; about 60 MB of temporaries).
 PHOTONS_PER_BATCH = 1 << 16
@@ -93,20 +97,6 @@ def check_photon_scene(scene: Scene) -> None:
 
 # ---------------------------------------------------------------------------
 # Shading helpers
-
-def _emission(scene: Scene, tracer: Tracer, prim, p, d):
-    """Emitted radiance of primitives ``prim`` at ``p`` towards ``-d``, (n, 3)."""
-    le = np.take(scene.prim_emission, prim, axis=0)
-    if not np.any(le):
-        return le
-    n_g = tracer.normals(prim, p)
-    front = np.einsum("ij,ij->i", n_g, d) < 0.0
-    le = np.where((front | np.take(scene.prim_two_sided_emission, prim))[:, None], le, 0.0)
-    if scene.checker_period is not None:
-        c = (np.floor(p[:, 0] / scene.checker_period) + np.floor(p[:, 2] / scene.checker_period)) % 2.0
-        le = le * c[:, None]
-    return le
-
 
 def _shading_frame(scene: Scene, mat, n_g, wo):
     """Shading normals: geometric, flipped towards ``wo`` except for transmissive materials."""
@@ -170,24 +160,17 @@ class PhotonBatch:
 
 
 def _emit(scene: Scene, n: int, n_total: int, rng):
-    """``n`` photons from the area lights, chosen in proportion to their power.
+    """``n`` photons leaving the area lights (:func:`~mcvar.integrators.emitters.sample_le`).
 
-    A uniform point on light ``l`` (area ``A_l``, chosen with probability
-    ``p_l``) and a cosine-weighted direction give flux
-    ``Le cos / (p_l / A_l * cos / pi) / N = pi A_l Le / (p_l N)`` per photon.
+    A light chosen uniformly among ``L``, a uniform point on it and a
+    cosine-weighted direction give the flux
+    ``Le cos / (pdf_pos pdf_dir) / N = pi L A_l Le / N`` per photon
+    (pbrt-v4, sec. 12.5).
     """
-    area = scene.light_area
-    power = area * scene.light_radiance.mean(axis=1)
-    p_light = power / power.sum() if power.sum() > 0 else np.full(scene.n_lights, 1.0 / scene.n_lights)
-    light = rng.choice(scene.n_lights, size=n, p=p_light)
-    x = square_to_uniform_parallelogram(rng.random((n, 2)), scene.light_origin[light],
-                                        scene.light_edge1[light], scene.light_edge2[light])
-    nrm = scene.light_normal[light]
-    d = Frame(nrm).to_world(square_to_cosine_hemisphere(rng.random((n, 2))))
+    x, d, nrm, le, pdf_pos, pdf_dir, _ = sample_le(scene, rng.random((n, 2)), rng.random((n, 2)))
+    cos = np.einsum("ij,ij->i", nrm, d)
     with np.errstate(divide="ignore", invalid="ignore"):
-        flux = np.where(p_light[light, None] > 0,
-                        np.pi * area[light, None] * scene.light_radiance[light] / (p_light[light, None] * n_total),
-                        0.0)
+        flux = np.where((pdf_dir > 0)[:, None], le * (cos / (pdf_pos * pdf_dir * n_total))[:, None], 0.0)
     return x, d, flux, nrm
 
 
@@ -375,7 +358,7 @@ def visible_points(scene: Scene, tracer: Tracer, origins, directions, *, rng=Non
         ok = ~miss
         o, d, beta, idx, prim = o[ok], d[ok], beta[ok], idx[ok], hit.prim[ok]
         p = o + hit.t[ok, None] * d
-        out.emitted[idx] += beta * _emission(scene, tracer, prim, p, d)
+        out.emitted[idx] += beta * scene.emission(prim, p, tracer.normals(prim, p), d)
         n_g = tracer.normals(prim, p)
         mat = scene.prim_material[prim]
         wo = -d
@@ -470,154 +453,68 @@ def photon_map_radiance(scene: Scene, pm: PhotonMap, vp: VisiblePoints, *, k: in
     return out
 
 
+
+
 # ---------------------------------------------------------------------------
-# SPPM
+# The registered method
 
-@dataclass(frozen=True, eq=False)
-class SPPMResult:
-    """The result of :func:`sppm`.
-
-    ``image`` (H, W, 3); ``radius`` (H, W) final per-pixel radii;
-    ``photon_count`` (H, W) the ``N`` of every pixel; ``iterations``;
-    ``photons`` emitted in total; ``seconds``; ``peak_photons``: most
-    photons held at once (one batch); ``rays`` traced (camera and photon).
-    """
-
-    image: np.ndarray
-    radius: np.ndarray
-    photon_count: np.ndarray
-    iterations: int
-    photons: int
-    seconds: float
-    peak_photons: int
-    rays: int = 0
+#: Nearest photons gathered by ``photon`` when neither ``k`` nor ``radius`` is given.
+DEFAULT_K = 100
 
 
-def default_radius(scene: Scene) -> float:
-    """Initial SPPM radius: 1/100 of the scene's bounding-box diagonal (5.6 in the Cornell box)."""
-    pts = [scene.triangles.reshape(-1, 3)]
-    if scene.n_spheres:
-        pts.append(scene.sphere_centers - scene.sphere_radii[:, None])
-        pts.append(scene.sphere_centers + scene.sphere_radii[:, None])
-    pts = np.concatenate(pts)
-    return 0.01 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+def check_photon_options(options) -> None:
+    """Options shared by ``photon`` and ``sppm``: clear errors for bad values."""
+    check_count(options["photons"], "photons")
+    if options.get("radius") is not None:
+        check_positive(options["radius"], "radius")
+    if options.get("k") is not None:
+        check_count(options["k"], "k")
+        if options.get("radius") is not None:
+            raise ValueError("give exactly one of k (nearest photons) and radius (fixed gather radius)")
+    if "alpha" in options:
+        alpha = options["alpha"]
+        if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.floating, np.integer)):
+            raise TypeError(f"alpha must be a real number in (0, 1); got {type(alpha).__name__}")
+        if not 0.0 < float(alpha) < 1.0:
+            raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
 
 
-def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: int = 1 << 15,
-         radius: float | None = None, alpha: float = 0.7, rng=None, max_depth: int | None = None,
-         tracer: Tracer | None = None, callback=None, pixel_offsets=None) -> SPPMResult:
-    """Stochastic progressive photon mapping (Hachisuka and Jensen 2009).
-
-    Parameters
-    ----------
-    scene : Scene
-    res : int or (int, int)
-        Square side or ``(width, height)``.
-    iterations : int
-        Passes; each traces one camera ray per pixel (a new random position
-        inside the pixel: the 'stochastic' part) and ``photons_per_iteration``
-        photons.
-    photons_per_iteration : int
-    radius : float, optional
-        Initial gather radius of every pixel (default :func:`default_radius`).
-    alpha : float
-        Fraction of new photons kept, in (0, 1) (default 0.7, the paper's).
-    rng : None, int, SeedSequence or Generator
-    max_depth : int or None
-        Segments of camera (delta) and photon paths; None: Russian roulette.
-    tracer : Tracer, optional
-    callback : callable, optional
-        ``callback(iteration, image_so_far)`` after every iteration.
-    pixel_offsets : ndarray, shape (W H, iterations, 2), optional
-        Position of each iteration's camera ray inside its pixel (e.g. a
-        pixel sampler's points, pixel-major); default iid uniform from ``rng``.
-
-    Returns
-    -------
-    SPPMResult
-
-    Notes
-    -----
-    Per pixel, after an iteration whose visible point gathered ``M`` photons
-    of flux ``phi = sum beta f Phi_p`` within ``R``:
-    ``N' = N + alpha M``, ``R' = R sqrt(N' / (N + M))``,
-    ``tau' = (tau + phi) (R' / R)^2``. The radiance after ``i`` iterations
-    is ``Le_sum / i + tau / (i pi R^2)`` (photon powers are per iteration's
-    emission, so ``tau`` sums ``i`` independent estimates). Photons of every
-    depth are gathered (no separate direct lighting), so a pixel's direct
-    light is blurred by its radius like its indirect light.
-    """
-    iterations = check_count(iterations, "iterations")
-    photons_per_iteration = check_count(photons_per_iteration, "photons_per_iteration")
-    alpha = float(alpha)
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
-    r0 = default_radius(scene) if radius is None else check_positive(radius, "radius")
+def check_photon_method_scene(scene, options) -> None:
+    """``check_scene`` of ``photon`` and ``sppm``: emission only from area lights, no
+    environment, no mixed delta/non-delta materials, valid options."""
+    check_photon_options(options)
     check_photon_scene(scene)
-    if isinstance(res, (int, np.integer)):
-        w = h = check_count(res, "res")
-    else:
-        w, h = (check_count(res[0], "res[0]"), check_count(res[1], "res[1]"))
-    rng = as_rng(rng)
-    tracer = Tracer(scene) if tracer is None else tracer
-    n_pix = w * h
-    if pixel_offsets is not None:
-        pixel_offsets = np.asarray(pixel_offsets, dtype=np.float64)
-        if pixel_offsets.shape != (n_pix, iterations, 2):
-            raise ValueError(f"pixel_offsets must have shape (W H, iterations, 2) = {(n_pix, iterations, 2)}; "
-                             f"got {pixel_offsets.shape}")
-    big_r = np.full(n_pix, r0)
-    count = np.zeros(n_pix)
-    tau = np.zeros((n_pix, 3))
-    le_sum = np.zeros((n_pix, 3))
-    start = time.perf_counter()
-    peak = 0
-    done = 0
-    rays = 0
-    pixel = np.arange(n_pix)
-    for it in range(iterations):
-        off = rng.random((n_pix, 2)) if pixel_offsets is None else pixel_offsets[:, it]
-        d = scene.camera.ray_directions((w, h), pixel, off)
-        o = np.broadcast_to(scene.camera.position, d.shape)
-        vp = visible_points(scene, tracer, o, d, rng=rng, max_depth=max_depth)
-        rays += vp.rays
-        le_sum += vp.emitted
-        rows = np.flatnonzero(vp.valid & (vp.beta.max(axis=1) > 0))
-        phi = np.zeros((n_pix, 3))
-        m_new = np.zeros(n_pix)
-        if rows.size:
-            vp_tree = cKDTree(vp.position[rows])
-            r_rows = big_r[rows]
-            r_max = float(r_rows.max())
-            counter = [0]
-            for batch in trace_photons(scene, photons_per_iteration, rng=rng, tracer=tracer,
-                                       max_depth=max_depth, ray_counter=counter):
-                peak = max(peak, batch.n)
-                pairs = vp_tree.sparse_distance_matrix(cKDTree(batch.position), r_max, output_type="coo_matrix")
-                if not pairs.nnz:
-                    continue
-                inside = pairs.data < r_rows[pairs.row]
-                vi, pj = pairs.row[inside], pairs.col[inside]
-                c = _gather(scene, rows, vp, batch, rows[vi], pj)
-                m_new[rows] += np.bincount(vi, minlength=rows.size)
-                for ch in range(3):
-                    phi[rows, ch] += np.bincount(vi, c[:, ch], minlength=rows.size)
-            rays += counter[0]
-        got = m_new > 0
-        n_next = count + alpha * m_new
-        with np.errstate(divide="ignore", invalid="ignore"):
-            shrink = np.where(got, np.sqrt(n_next / (count + m_new)), 1.0)
-        tau = (tau + phi) * (shrink ** 2)[:, None]
-        big_r = big_r * shrink
-        count = n_next
-        done = it + 1
-        if callback is not None:
-            callback(done, _sppm_image(le_sum, tau, big_r, done, w, h))
-    return SPPMResult(image=_sppm_image(le_sum, tau, big_r, done, w, h), radius=big_r.reshape(h, w),
-                      photon_count=count.reshape(h, w), iterations=done, photons=done * photons_per_iteration,
-                      seconds=time.perf_counter() - start, peak_photons=peak, rays=rays)
+    mixed = [f"{scene.material_names[m]!r} ({type(scene.materials[m]).__name__})"
+             for m in np.unique(scene.prim_material)
+             if getattr(scene.materials[m], "has_delta", False) and not getattr(scene.materials[m], "is_delta", False)]
+    if mixed:
+        raise ValueError(f"photon mapping here follows camera rays through pure delta BSDFs only; scene "
+                         f"{scene.name!r} has material(s) with a delta and a non-delta lobe: {', '.join(mixed)}")
 
 
-def _sppm_image(le_sum, tau, big_r, iterations, w, h):
-    img = le_sum / iterations + tau / (iterations * np.pi * big_r[:, None] ** 2)
-    return img.reshape(h, w, 3)
+def _prepare_photon(scene, options, rng) -> PhotonMap:
+    return build_photon_map(scene, options["photons"], rng=rng)
+
+
+def run_photon_batch(job: BatchJob) -> BatchResult:
+    """``run_batch`` of ``photon``: visible points of this batch's camera rays, density estimate."""
+    n = job.n_pixels * job.spp
+    rows = np.arange(n)
+    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
+    offsets = SampleStream(job.u, job.rng).columns(0, CAMERA_DIMS, rows)
+    d = job.scene.camera.ray_directions(job.res, pixel, offsets.T)
+    o = np.ascontiguousarray(np.broadcast_to(job.scene.camera.position, d.shape))
+    vp = visible_points(job.scene, job.tracer, o, d, rng=job.rng)
+    k, radius = job.options["k"], job.options["radius"]
+    if k is None and radius is None:
+        k = DEFAULT_K
+    out = photon_map_radiance(job.scene, job.prepared, vp, k=k, radius=radius)
+    return camera_result(job, out, vp.rays, "photon")
+
+
+register(Method(
+    "photon", "camera", run_photon_batch,
+    "photon mapping (Jensen 1996): photons from the lights, density estimation at the first diffuse hit",
+    options=dict(photons=1 << 17, k=None, radius=None),
+    prepare=_prepare_photon, check_scene=check_photon_method_scene, uses_max_depth=False,
+    lecture=("yes", "no")))
