@@ -252,3 +252,21 @@ def test_bad_input(cornell):
         solve_radiosity(np.eye(2) * 0.5, np.ones((2, 3)), np.ones((2, 3)))
     with pytest.raises(TypeError, match="Scene"):
         check_diffuse("cornell")
+
+
+def test_registered_radiosity(cornell):
+    from mcvar.integrators import METHODS
+
+    m = METHODS["radiosity"]
+    assert m.kind == "first_hit" and not m.uses_max_depth and m.lecture == ("no", "no")
+    opts = dict(patch_size=140.0, rays_per_side=64, emitter_rays=1 << 14)
+    a = render(cornell, integrator="radiosity", spp=4, res=8, rng=SEED, batch_spp=2, **opts)
+    b = render(cornell, integrator="radiosity", spp=4, res=8, rng=SEED, batch_spp=2, workers=2, **opts)
+    assert a.image.shape == (8, 8, 3) and np.all(np.isfinite(a.image))
+    np.testing.assert_array_equal(a.image, b.image)     # the solve is seeded once, batches are per seed
+    with pytest.raises(ValueError, match="mirror"):
+        render(load_scene("cornell-spheres"), integrator="radiosity", spp=1, res=4)
+    with pytest.raises(ValueError, match="patch_size"):
+        render(cornell, integrator="radiosity", spp=1, res=4, patch_size=0.0)
+    with pytest.raises(ValueError, match="solver"):
+        render(cornell, integrator="radiosity", spp=1, res=4, solver="gauss")
