@@ -280,7 +280,7 @@ def test_bad_types(cornell):
 
 def test_integrator_names_are_the_documented_ones():
     assert set(INTEGRATORS) == {"path", "path_bsdf", "direct", "direct_light", "direct_bsdf",
-                                "albedo", "normal", "depth", "raster"}
+                                "albedo", "normal", "depth", "raster", "position"}
 
 
 def test_shadow_rays_stop_short_of_the_light_plane_at_grazing_angles():

@@ -30,7 +30,7 @@ PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
     "testing": ["_domains", "_chi2", "mutants", "__init__"],
-    "integrators": ["registry", "stream", "film", "emitters", "state", "lambertian", "path", "aov",
+    "integrators": ["registry", "stream", "film", "emitters", "state", "lambertian", "path", "aov", "position",
                     "radiosity", "photon", "sppm", "driver", "__init__"],
 }
 

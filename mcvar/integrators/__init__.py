@@ -15,6 +15,7 @@ module             holds
 ``path``           ``path``, ``path_bsdf``, ``direct``, ``direct_light``,
                    ``direct_bsdf``; :func:`trace_paths`
 ``aov``            ``albedo``, ``normal``, ``depth``, ``raster``
+``position``       the ``position`` AOV (the example of a one-module method)
 ``radiosity``      ``radiosity``: finite-element radiosity (patches, form
                    factors, solve, first-hit lookup)
 ``photon``         ``photon``: photon tracing, photon maps, visible points,
@@ -35,6 +36,7 @@ from .emitters import Emitters, pdf_le, sample_le
 from .state import RR_MAX_DEPTH, RR_START_DEPTH, shadow_rays as _shadow_rays
 from .path import HEURISTICS, KERNELS, trace_camera_paths, trace_paths
 from .aov import aov_method
+from . import position  # noqa: F401  (registers the 'position' AOV: the example method)
 from . import radiosity, photon, sppm  # noqa: F401  (register radiosity, photon, sppm)
 from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
                      estimate_render_bytes, render)

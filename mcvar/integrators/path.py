@@ -5,9 +5,12 @@
 =================  ==========================================================
 ``direct``         one-bounce direct lighting, light sampling and BSDF
                    sampling combined by MIS (``heuristic``: power or balance)
-``direct_light``   one-bounce direct lighting by light sampling (emitters
-                   seen through a delta lobe, which light sampling cannot
-                   draw, by BSDF sampling: the only strategy that can)
+``direct_light``   one-bounce direct lighting by light sampling; what light
+                   sampling cannot draw (emitters seen through a delta lobe,
+                   emitting surfaces that are not lights) by BSDF sampling,
+                   the only strategy that can (before issue 10 it was
+                   missing, so on scenes with mirrors, glass, smooth plastic
+                   or the furnace it disagreed with ``direct``)
 ``direct_bsdf``    one-bounce direct lighting by BSDF sampling only
 ``path``           path tracing with next-event estimation and MIS ('backward
                    path tracing + connect to light'); Russian roulette when
@@ -112,7 +115,8 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
       or after a delta lobe (decided *per sample* by the mask of
       ``sample(..., return_delta=True)``: a layered material such as a smooth
       :class:`mcvar.bsdf.Plastic` has both kinds), else with the MIS weight
-      ``w(p_bsdf, p_light)`` (0 for ``direct_light``);
+      ``w(p_bsdf, p_light)`` (``direct_light``: 0 where NEE could have drawn
+      it, else 1);
     * NEE (if ``k + 1 <= max_depth``): an emitter point drawn with density
       ``p_light`` (area density converted to solid angle,
       ``p_A r^2 / |cos theta_l|``), one shadow ray, adding
@@ -231,8 +235,10 @@ def _trace_general(tr: Transport, o, d) -> None:
         # -- next-event estimation (adds paths of k + 1 segments)
         if tr.nee and k + 1 <= tr.limit:
             _next_event(tr, state, k, groups, p, ng, frame, wo_l, prim)
-        # -- continue the path by BSDF sampling?
-        if k + 1 > tr.limit or (k + 1 == tr.limit and not tr.bsdf_hits):
+        # -- continue the path by BSDF sampling? (without bsdf_hits only
+        # through delta lobes, whose emission light sampling cannot find)
+        last = k + 1 == tr.limit and not tr.bsdf_hits
+        if k + 1 > tr.limit or (last and not (tables.any_delta or tables.hidden_emitters)):
             break
         ub = stream.vertex(k, BSDF, 2, state.idx)
         wi_l = np.empty((3, m))
@@ -249,7 +255,8 @@ def _trace_general(tr: Transport, o, d) -> None:
         wi = fs * wi_l[0]
         wi += fn * wi_l[1]
         wi += ft * wi_l[2]
-        alive = roulette(tr, state, k, np.ones(m, dtype=bool))
+        keep_all = not last or tables.hidden_emitters
+        alive = roulette(tr, state, k, np.ones(m, dtype=bool) if keep_all else np.isinf(pdf))
         side = np.sign(dot(wi, ng))
         side *= tr.eps
         np.multiply(ng, side, out=state.o)

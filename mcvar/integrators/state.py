@@ -126,6 +126,11 @@ class SceneTables:
         self.flips = np.array([_flips(m) for m in scene.materials])
         #: every lobe a Dirac delta: NEE skips the material (per-sample masks decide the rest)
         self.all_delta = np.array([bool(getattr(m, "is_delta", False)) for m in scene.materials])
+        #: some emitting primitive is not a light NEE samples (the furnace, the checkerboard)
+        self.hidden_emitters = bool(np.any(self.emits[:-1] & (scene.prim_light < 0)))
+        #: some material has a delta lobe (Mirror, Glass, smooth Plastic ...)
+        self.any_delta = any(bool(getattr(m, "is_delta", False) or getattr(m, "has_delta", False))
+                             for m in scene.materials)
         self.n_tri = scene.n_triangles
         self.spheres = scene.n_spheres > 0
         if not self.spheres and self.n_tri:
@@ -136,6 +141,7 @@ class SceneTables:
             self.frame_n = np.ascontiguousarray(fr.n.T)
             self.frame_t = np.ascontiguousarray(fr.t.T)
         self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
+                           and not self.hidden_emitters
                            and all(type(m) is Lambertian for m in scene.materials))
 
     def lambertian_missing(self, emitters: Emitters) -> str | None:
@@ -145,6 +151,8 @@ class SceneTables:
             return "exactly one quad light and no environment"
         if self.spheres or not self.n_tri:
             return "triangles only"
+        if self.hidden_emitters:
+            return "no emitting surface other than the light"
         bad = [n for n, m in zip(scene.material_names, scene.materials) if type(m) is not Lambertian]
         if bad:
             return f"Lambertian materials only (not {', '.join(bad)})"
@@ -218,9 +226,14 @@ class Transport:
             return np.ones(n)
         delta = np.isinf(prev_pdf)
         if not self.bsdf_hits:
-            # Light sampling alone cannot draw emission seen through a delta
-            # bounce; emission after a smooth bounce was already counted by NEE.
-            return np.zeros(n)
+            # Light sampling cannot draw emission seen through a delta lobe, nor
+            # emission of surfaces that are not lights (NEE density 0): BSDF
+            # sampling, the only strategy that can, counts it (weight 1); other
+            # emission after a smooth bounce was already counted by NEE.
+            unsampled = delta.copy()
+            if self.tables.hidden_emitters:
+                unsampled |= ~(light_pdf() > 0.0)
+            return unsampled.astype(np.float64)
         if not (self.nee and self.mis):
             return np.ones(n)
         w = self.weight_fn(np.where(delta, 1.0, prev_pdf), light_pdf())
