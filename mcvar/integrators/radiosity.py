@@ -603,5 +603,5 @@ def run_radiosity_batch(job: BatchJob) -> BatchResult:
 register(Method(
     "radiosity", "first_hit", run_radiosity_batch,
     "finite-element radiosity: patches, ray-cast form factors, (I - rho F) B = E, flat lookup at the first hit",
-    options=dict(patch_size=40.0, rays_per_side=256, emitter_rays=1 << 20, solver="jacobi"),
+    options=dict(patch_size=70.0, rays_per_side=256, emitter_rays=1 << 18, solver="jacobi"),
     prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no")))
