@@ -30,7 +30,7 @@ def test_notes():
 def small_chart(tmp_path_factory):
     cache = tmp_path_factory.mktemp("chart-cache")
     # raster's bias (no shadows) is large; 8 replicates give the Welch test 7 degrees of freedom
-    return measure_chart(methods=("raster", "path"), levels=(1, 4, 16, 64), replicates=8, res=16, workers=1,
+    return measure_chart(quick=True, methods=("raster", "path"), levels=(1, 4, 16, 64), replicates=8, res=16, workers=1,
                          cache_dir=cache, progress=False)
 
 

@@ -141,15 +141,15 @@ def test_k_nearest_bias_shrinks_with_k(cornell_rays):
     scene, tracer, o, d, ref, ref_var = cornell_rays
     vp = visible_points(scene, tracer, o, d, rng=SEED)
     keep = vp.emitted.sum(axis=1) == 0
-    maps = [build_photon_map(scene, 1 << 15, rng=s, tracer=tracer)
+    maps = [build_photon_map(scene, 1 << 14, rng=s, tracer=tracer)
             for s in np.random.default_rng(SEED + 1).spawn(6)]
     est = {}
-    for k in (800, 50):
+    for k in (400, 25):
         x = np.array([photon_map_radiance(scene, pm, vp, k=k)[keep] for pm in maps]).reshape(len(maps), -1)
         est[k] = _jackknife(x, ref[keep].ravel(), ref_var[keep].ravel())
     t = stats.t.isf(1e-3, len(maps) - 1)
-    (b_big, _), (se_big, _) = est[800]
-    (b_small, _), (se_small, _) = est[50]
+    (b_big, _), (se_big, _) = est[400]
+    (b_small, _), (se_small, _) = est[25]
     assert b_big > t * se_big and b_big - b_small > t * np.hypot(se_big, se_small), est
 
 
