@@ -176,7 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "chart.csv, chart.html and chart.png beside the lecture's answers. "
                                    "Re-running reuses finished runs (DIR/cache).")
     p.add_argument("--out", type=Path, default=Path("out/chart"), help="output folder (default out/chart)")
-    p.add_argument("--quick", action="store_true", help="16 x 16, levels 1,4,16,64, 4 replicates (< 2 min)")
+    p.add_argument("--quick", action="store_true", help="16 x 16, levels 1,4,16,64, 6 replicates (< 2 min)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)
     return parser
