@@ -53,15 +53,26 @@ def _cmd_render(args) -> int:
     from .integrators import render
     from .scene import load_scene
 
+    options = {}
+    if args.strategies is not None:
+        if args.integrator != "bdpt":
+            raise ValueError("--strategies writes the (s, t) strategy images of bidirectional path tracing: "
+                             f"it needs --integrator bdpt, not {args.integrator!r}")
+        options["strategies"] = True
     scene = load_scene(args.scene)
     result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
                     sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
                     heuristic=args.heuristic, batch_spp=args.batch_spp,
-                    workers=args.workers, progress=not args.quiet)
+                    workers=args.workers, progress=not args.quiet, **options)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
           f"{result.spp} spp in {result.seconds:.2f} s{note}")
+    if args.strategies is not None:
+        from .integrators.bdpt import strategies_from_extra, write_strategies
+
+        written = write_strategies(args.strategies, strategies_from_extra(result.extra, result.res), result.res)
+        print(f"wrote {len(written) - 1} strategy images (s{{s}}_t{{t}}.npy) and {written[-1]}")
     return 0
 
 
@@ -132,6 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heuristic", default="power", help="MIS heuristic: power or balance")
     p.add_argument("--batch-spp", type=int, default=None, help="spp per batch (bounds memory)")
     p.add_argument("--workers", type=int, default=1, help="processes to spread spp batches over")
+    p.add_argument("--strategies", type=Path, default=None, metavar="DIR",
+                   help="with --integrator bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
+                        "to DIR (s{s}_t{t}.npy, linear) and their grid (strategies.png)")
     p.add_argument("--out", type=Path, default=Path("out/render.png"), help=".npy, .png or .exr")
     p.set_defaults(func=_cmd_render)
 

@@ -20,6 +20,10 @@ Scenes
     The same room with the two blocks replaced by a mirror sphere and a glass
     sphere (index 1.5): the lecture's 'Direct + Reflection + Refraction' vs
     'Global' pair.
+``cornell-point``
+    The Cornell box with the area light replaced by a point light of the same
+    power at its centre, 1 unit below the ceiling (issue 11): the lecture's
+    'backward path tracing fails for point lights'.
 ``checkerboard``
     An emissive checkerboard plane seen in perspective down to the horizon:
     every pixel is the image-plane integral of a 0/1 pattern over its
@@ -51,6 +55,7 @@ __all__ = [
     "load_scene",
     "cornell_scene",
     "cornell_spheres_scene",
+    "cornell_point_scene",
     "checkerboard_scene",
     "furnace_scene",
     "quad_environment_scene",
@@ -207,6 +212,186 @@ class Camera:
         d /= norm
         return d
 
+    # ------------------------------------------------------------------
+    # The pinhole as a sensor: projection, importance and its pdfs
+    # (light tracing and BDPT connect to the camera; pbrt-v4's
+    # PerspectiveCamera::We / PDF_We / SampleWi, Veach 1997 sec. 10.3)
+
+    def film_area(self, res) -> float:
+        """Area ``A`` of the film on the plane at distance 1 in front of the pinhole.
+
+        ``A = (2 t)^2 H / W`` with ``t = tan(fov / 2)`` (horizontal field of
+        view, square pixels); one pixel covers ``A / (W H)``.
+        """
+        width, height = _film_res(res)
+        t = math.tan(math.radians(self.fov_deg) / 2.0)
+        return 4.0 * t * t * height / width
+
+    def _plane_coords(self, directions):
+        """``(x, y, cos)``: where world directions (n, 3) cross the plane at
+        distance 1 (image right and up), and their cosine with ``forward``."""
+        forward, right, up = self.basis()
+        d = np.asarray(directions, dtype=np.float64)
+        cos = d @ forward
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.where(cos > 0.0, 1.0 / cos, 0.0)
+        return (d @ right) * inv, (d @ up) * inv, cos
+
+    def _raster(self, res, directions):
+        """Continuous pixel coordinates ``(col + u, row + v)`` of directions
+        and whether each lies in the frame (in front of the pinhole)."""
+        width, height = _film_res(res)
+        t = math.tan(math.radians(self.fov_deg) / 2.0)
+        x, y, cos = self._plane_coords(directions)
+        scale = width / (2.0 * t)
+        px = (x + t) * scale
+        py = (t * height / width - y) * scale
+        visible = (cos > 0.0) & (px >= 0.0) & (px < width) & (py >= 0.0) & (py < height)
+        return np.stack([px, py], axis=-1), visible, cos
+
+    def project(self, points, res):
+        """Pixel coordinates of world points: the inverse of :meth:`ray_directions`.
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 3)
+            World points.
+        res : tuple of int
+            ``(W, H)``.
+
+        Returns
+        -------
+        pixel_xy : ndarray, shape (n, 2)
+            ``(j + u, i + v)``: column plus offset and row plus offset, so the
+            ray of pixel ``(i, j)`` with sample offset ``(u, v)`` projects back
+            to it. Meaningless where ``visible`` is False.
+        visible : ndarray of bool, shape (n,)
+            The point is in front of the pinhole and inside the frame
+            (``0 <= j + u < W``, ``0 <= i + v < H``). Occlusion is not tested.
+        """
+        p = as_array(points, "points", ndim=2, last=3)
+        v = p - self.position
+        r = np.sqrt(np.einsum("ij,ij->i", v, v))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = v / np.where(r > 0.0, r, 1.0)[:, None]
+        pixel_xy, visible, _ = self._raster(res, d)
+        visible &= r > 0.0
+        return pixel_xy, visible
+
+    def pixel_index(self, pixel_xy, res) -> np.ndarray:
+        """Flat pixel index ``i * W + j`` of pixel coordinates from :meth:`project`."""
+        width, height = _film_res(res)
+        xy = np.asarray(pixel_xy, dtype=np.float64)
+        col = np.clip(np.floor(xy[:, 0]).astype(np.int64), 0, width - 1)
+        row = np.clip(np.floor(xy[:, 1]).astype(np.int64), 0, height - 1)
+        return row * width + col
+
+    def We(self, directions, res) -> np.ndarray:
+        """Importance ``W_e(omega)`` of the pinhole for rays leaving it along ``directions``.
+
+        Parameters
+        ----------
+        directions : array_like, shape (n, 3)
+            Unit world directions from the pinhole.
+        res : tuple of int
+            ``(W, H)``.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``1 / (A cos^4 theta)`` inside the frame, 0 outside (``A`` =
+            :meth:`film_area`, ``theta`` the angle to ``forward``).
+
+        Notes
+        -----
+        Normalisation (the one pbrt-v4's ``PerspectiveCamera::We`` uses, with
+        the film at distance 1): a pixel value of mcvar is the mean radiance
+        over the pixel square of the film (box filter, CORNELL.md),
+        ``I_j = (1 / A_pix) int_pixel L(omega(x)) dx``. With
+        ``d omega = cos^3 theta dx`` this is
+        ``I_j = int W_j(omega) L(omega) cos theta d omega`` with
+        ``W_j = 1 / (A_pix cos^4 theta)`` on pixel ``j``, and
+        ``sum_j W_j = W H * We`` with ``We = 1 / (A cos^4 theta)``.
+        Light tracing with ``N = W H spp`` light paths therefore estimates
+        pixel ``j`` as ``(1 / spp) sum (contributions with We landing in
+        j)``: image = splat sum / spp, the same normalisation as a camera
+        render of ``spp`` samples per pixel. ``We`` integrates to 1 against
+        ``cos theta d omega`` over the frame.
+        """
+        d = as_array(directions, "directions", ndim=2, last=3)
+        _, visible, cos = self._raster(res, d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            we = 1.0 / (self.film_area(res) * cos ** 4)
+        return np.where(visible, we, 0.0)
+
+    def pdf_We(self, directions, res):
+        """Densities of the camera's primary rays (pixel uniform over the film).
+
+        Returns
+        -------
+        pdf_pos : ndarray, shape (n,)
+            1: the pinhole is a single point (a Dirac delta in area measure,
+            as for a point light); strategies that would have to hit it get
+            probability zero (Veach 1997, sec. 10.3.5).
+        pdf_dir : ndarray, shape (n,)
+            ``1 / (A cos^3 theta)`` per unit solid angle inside the frame,
+            else 0: a uniform point on the film of area ``A`` at distance 1
+            (``dx = d omega / cos^3 theta``).
+        """
+        d = as_array(directions, "directions", ndim=2, last=3)
+        _, visible, cos = self._raster(res, d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pdf = 1.0 / (self.film_area(res) * cos ** 3)
+        return np.ones(d.shape[0]), np.where(visible, pdf, 0.0)
+
+    def sample_Wi(self, points, res):
+        """Connect world points to the pinhole (pbrt-v4's ``SampleWi``).
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 3)
+        res : tuple of int
+
+        Returns
+        -------
+        wi : ndarray, shape (n, 3)
+            Unit directions from the points towards the pinhole.
+        dist : ndarray, shape (n,)
+        We : ndarray, shape (n,)
+            Importance of the ray from the pinhole towards each point (0
+            outside the frame).
+        pdf : ndarray, shape (n,)
+            Density of choosing the pinhole, per unit solid angle at the
+            point: ``dist^2 / cos theta`` (a delta in position converted to
+            solid angle, pbrt's convention), so that a light-tracing vertex
+            contributes ``beta f |cos| We / pdf``.
+        pixel_xy : ndarray, shape (n, 2)
+        visible : ndarray of bool, shape (n,)
+        """
+        p = as_array(points, "points", ndim=2, last=3)
+        v = self.position - p
+        dist = np.sqrt(np.einsum("ij,ij->i", v, v))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wi = v / np.where(dist > 0.0, dist, 1.0)[:, None]
+        pixel_xy, visible, cos = self._raster(res, -wi)
+        visible &= dist > 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            we = np.where(visible, 1.0 / (self.film_area(res) * cos ** 4), 0.0)
+            pdf = np.where(visible, dist * dist / cos, 0.0)
+        return wi, dist, we, pdf, pixel_xy, visible
+
+
+def _film_res(res):
+    """``(W, H)`` as positive ints (the image size a camera method is asked about)."""
+    try:
+        width, height = res
+    except (TypeError, ValueError):
+        raise TypeError(f"res must be a (width, height) pair; got {res!r}") from None
+    for v, name in ((width, "res[0] (width)"), (height, "res[1] (height)")):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name} must be a positive int; got {v!r}")
+    return int(width), int(height)
+
 
 @dataclass(frozen=True, eq=False)
 class Scene:
@@ -252,6 +437,15 @@ class Scene:
         pattern ``(floor(x / p) + floor(z / p)) mod 2`` of the hit point.
     ray_epsilon : float
         Offset along the normal of secondary ray origins (scene units).
+    point_light_position : ndarray, shape (P, 3)
+        Point lights (default none): a position each, no surface. Nothing
+        can hit them, so only methods that connect to lights see them
+        (next-event estimation, light tracing, BDPT); ``path_bsdf`` renders
+        their illumination black (the lecture's 'probability zero' path).
+    point_light_intensity : ndarray, shape (P, 3)
+        Radiant intensity ``I`` (W/sr, linear RGB) emitted uniformly in all
+        directions: irradiance ``I cos / r^2`` at distance ``r``, power
+        ``4 pi I``.
     """
 
     name: str
@@ -274,6 +468,8 @@ class Scene:
     checker_period: float | None = None
     ray_epsilon: float = 1e-3
     description: str = field(default="")
+    point_light_position: np.ndarray | None = None
+    point_light_intensity: np.ndarray | None = None
 
     def __post_init__(self):
         tri = _frozen(self.triangles).reshape(-1, 3, 3)
@@ -306,6 +502,17 @@ class Scene:
             raise ValueError("light_radiance must be non-negative")
         if not np.all(np.linalg.norm(np.cross(lights["light_edge1"], lights["light_edge2"]), axis=1) > 0):
             raise ValueError("light edges must span a parallelogram of positive area")
+        points = {k: _frozen(np.zeros((0, 3)) if getattr(self, k) is None else getattr(self, k)).reshape(-1, 3)
+                  for k in ("point_light_position", "point_light_intensity")}
+        if points["point_light_position"].shape != points["point_light_intensity"].shape:
+            raise ValueError("point_light_position and point_light_intensity must have one row (3 values) "
+                             f"per point light; got {points['point_light_position'].shape} and "
+                             f"{points['point_light_intensity'].shape}")
+        if not (np.all(np.isfinite(points["point_light_position"]))
+                and np.all(np.isfinite(points["point_light_intensity"]))
+                and np.all(points["point_light_intensity"] >= 0)):
+            raise ValueError("point lights need finite positions and finite non-negative intensities")
+        lights.update(points)
         pl = tables["prim_light"]
         if n_prim and not (pl.min() >= -1 and pl.max() < n_light):
             raise ValueError("prim_light must be -1 or index a light")
@@ -331,6 +538,10 @@ class Scene:
     @property
     def n_lights(self) -> int:
         return self.light_origin.shape[0]
+
+    @property
+    def n_point_lights(self) -> int:
+        return self.point_light_position.shape[0]
 
     @property
     def light_area(self) -> np.ndarray:
@@ -489,6 +700,45 @@ def cornell_spheres_scene(eta: float = 1.5) -> Scene:
                  **_cornell_common(blocks=False, extra_spheres=spheres))
 
 
+#: Distance of the ``cornell-point`` light below the ceiling plane y = 548.8.
+CORNELL_POINT_LIGHT_DROP = 1.0
+
+
+def cornell_point_scene() -> Scene:
+    """The Cornell box lit by a point light of the area light's power.
+
+    Notes
+    -----
+    The light quad is removed; a point light sits at the centre of where it
+    was (x = 278, z = 279.5), :data:`CORNELL_POINT_LIGHT_DROP` = 1 unit below
+    the ceiling (y = 547.8). Same power: the one-sided Lambertian area light
+    emits ``Phi = pi L A`` (``A`` = 130 x 105 = 13 650), and an isotropic
+    point light of intensity ``I`` emits ``4 pi I``, so
+    ``I = Phi / (4 pi) = L A / 4`` = (58 012.5, 40 950, 13 650). Half of it
+    goes up: the ceiling right above the light is a small, very bright spot
+    (irradiance ``I / 1^2``) that lights the room indirectly. Path tracing
+    reaches the light only through next-event estimation; ``path_bsdf``
+    renders the room black (Veach 1997, sec. 10.3.5: a path through a point
+    light has probability zero for any method that must hit it).
+    """
+    common = _cornell_common(blocks=True)
+    keep = np.flatnonzero(np.asarray(common["prim_light"]) < 0)      # drop the light quad
+    for key in ("triangles", "prim_emission", "prim_two_sided_emission", "prim_light"):
+        common[key] = np.asarray(common[key])[keep]
+    common["prim_material"] = [common["prim_material"][i] for i in keep]
+    common["prim_group"] = [common["prim_group"][i] for i in keep]
+    origin, e1, e2 = _cornell_light()
+    centre = origin + 0.5 * (e1 + e2)
+    position = np.array([centre[0], 548.8 - CORNELL_POINT_LIGHT_DROP, centre[2]])
+    area = float(np.linalg.norm(np.cross(e1, e2)))
+    power = np.pi * np.array(CORNELL_LIGHT_RADIANCE) * area
+    for key in ("light_origin", "light_edge1", "light_edge2", "light_radiance"):
+        common[key] = np.zeros((0, 3))
+    return Scene(name="cornell-point", description="Cornell box, point light of the area light's power",
+                 point_light_position=position[None], point_light_intensity=(power / (4.0 * np.pi))[None],
+                 **common)
+
+
 def checkerboard_scene(period: float = 1.0) -> Scene:
     """An emissive checkerboard plane in perspective: an image-plane integral.
 
@@ -602,6 +852,7 @@ def quad_environment_scene(albedo=0.5, radiance=1.0, resolution=(8, 16)) -> Scen
 SCENES: dict[str, Callable[..., Scene]] = {
     "cornell": cornell_scene,
     "cornell-spheres": cornell_spheres_scene,
+    "cornell-point": cornell_point_scene,
     "checkerboard": checkerboard_scene,
     "furnace": furnace_scene,
     "quad-environment": quad_environment_scene,
@@ -614,7 +865,7 @@ def load_scene(name: str, **options) -> Scene:
     Parameters
     ----------
     name : str
-        One of ``'cornell'``, ``'cornell-spheres'``, ``'checkerboard'``,
+        One of ``'cornell'``, ``'cornell-spheres'``, ``'cornell-point'``, ``'checkerboard'``,
         ``'furnace'``, ``'quad-environment'``.
     **options
         Passed to the builder (e.g. ``albedo=0.8`` for ``'furnace'``).

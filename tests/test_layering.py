@@ -31,7 +31,7 @@ PACKAGE_ORDER = {
     "experiments": ["targets", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
     "testing": ["_domains", "_chi2", "mutants", "__init__"],
     "integrators": ["registry", "stream", "film", "emitters", "state", "lambertian", "path", "aov", "position",
-                    "radiosity", "photon", "sppm", "driver", "__init__"],
+                    "light", "bdpt", "radiosity", "photon", "sppm", "driver", "__init__"],
 }
 
 

@@ -175,3 +175,105 @@ def test_scene_rejects_inconsistent_tables():
         dataclasses.replace(scene, prim_material=np.zeros(3, dtype=int))
     with pytest.raises(ValueError, match="prim_material must index into materials"):
         dataclasses.replace(scene, prim_material=np.full(32, 9))
+
+
+# ---------------------------------------------------------------------------
+# The pinhole as a sensor (issue 11): project, We, pdf_We, sample_Wi
+
+@pytest.mark.parametrize("res", [(16, 16), (12, 7)])
+def test_project_returns_the_pixel_sample_of_a_camera_ray(res):
+    cam = load_scene("cornell").camera
+    rng = np.random.default_rng(11)
+    w, h = res
+    pix = rng.integers(0, w * h, 2000)
+    uv = rng.random((2000, 2))
+    d = cam.ray_directions(res, pix, uv)
+    points = cam.position + d * rng.uniform(1.0, 2000.0, (2000, 1))
+    xy, visible = cam.project(points, res)
+    assert visible.all()
+    np.testing.assert_allclose(xy, np.stack([pix % w + uv[:, 0], pix // w + uv[:, 1]], -1), rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(cam.pixel_index(xy, res), pix)
+
+
+def test_project_rejects_points_behind_or_outside_the_frame():
+    cam = load_scene("cornell").camera
+    forward, right, up = cam.basis()
+    t = math.tan(math.radians(cam.fov_deg) / 2)
+    pts = cam.position + np.array([forward * 10, -forward * 10, forward + 1.01 * t * right,
+                                   forward - 0.99 * t * up, forward + 1.01 * t * up])
+    _, visible = cam.project(pts, (8, 8))
+    assert visible.tolist() == [True, False, False, True, False]
+    with pytest.raises(ValueError, match="points"):
+        cam.project(np.zeros((3, 2)), (8, 8))
+    with pytest.raises(ValueError, match="res"):
+        cam.We(np.tile(forward, (2, 1)), (0, 8))
+
+
+@pytest.mark.parametrize("res", [(16, 16), (10, 6)])
+def test_we_and_pdf_we_integrate_to_one_over_the_sphere(res):
+    """int We cos d omega = 1 and int pdf_dir d omega = 1, by uniform sphere
+    sampling (5 standard errors); the film fraction of the sphere is small, so
+    many samples, still < 0.1 s."""
+    from mcvar.warps import square_to_uniform_sphere
+
+    cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0), 70.0)
+    rng = np.random.default_rng(5)
+    d = square_to_uniform_sphere(rng.random((400_000, 2)))
+    forward = cam.basis()[0]
+    cos = d @ forward
+    for g in (cam.We(d, res) * cos * 4 * np.pi, cam.pdf_We(d, res)[1] * 4 * np.pi):
+        se = g.std(ddof=1) / math.sqrt(g.size)
+        assert abs(g.mean() - 1.0) < 5 * se, (g.mean(), se)
+    pos, pdf_dir = cam.pdf_We(d[:5], res)
+    np.testing.assert_array_equal(pos, 1.0)
+    # pbrt's relation between the two: We cos = pdf_dir inside the frame
+    inside = cam.We(d, res) > 0
+    np.testing.assert_allclose(cam.We(d, res)[inside] * cos[inside], cam.pdf_We(d, res)[1][inside], rtol=1e-12)
+
+
+def test_light_tracing_an_emitting_plane_gives_its_radiance_per_pixel():
+    """Particle tracing by hand with sample_Wi: points uniform on an emitting
+    Lambertian quad that fills the view, each splatting Le A cos We / pdf at
+    its projected pixel; with N = W H spp particles, image = sum / spp must be
+    Le in every pixel (5 SE per pixel, Sidak over the pixels)."""
+    from scipy.stats import norm
+
+    cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0), 60.0)
+    res, spp, le = (6, 4), 4000, 2.5
+    w, h = res
+    n = w * h * spp
+    rng = np.random.default_rng(3)
+    half = 3.0                                                       # plane z = 2, [-3, 3]^2
+    p = np.column_stack([rng.uniform(-half, half, n), rng.uniform(-half, half, n), np.full(n, 2.0)])
+    area = (2 * half) ** 2
+    wi, dist, we, pdf, xy, visible = cam.sample_Wi(p, res)
+    cos_e = np.abs(wi[:, 2])                                       # plane normal -z faces the camera
+    with np.errstate(divide="ignore", invalid="ignore"):
+        contrib = np.where(visible, le * area * cos_e * we / pdf, 0.0)
+    pix = cam.pixel_index(xy, res)
+    img = np.bincount(pix[visible], contrib[visible], minlength=w * h) / spp
+    sq = np.bincount(pix[visible], contrib[visible] ** 2, minlength=w * h)
+    # per pixel: img = (1/spp) sum_all X_k, X_k = contrib * [in pixel]; var of the sum from E[X^2]
+    se = np.sqrt(np.maximum(sq / n - (img * spp / n) ** 2, 0) * n) / spp
+    z = norm.isf(0.5 * (1 - (1 - 2 * norm.sf(5)) ** (1 / (w * h))))
+    assert np.all(np.abs(img - le) < z * se), (img, se)
+
+
+def test_cornell_point_has_the_area_lights_power_at_its_centre():
+    area, point = load_scene("cornell"), load_scene("cornell-point")
+    assert point.n_lights == 0 and point.n_point_lights == 1
+    assert not np.any(point.prim_emission)
+    assert point.n_triangles == area.n_triangles - 2                 # the light quad is gone
+    phi_area = np.pi * area.light_radiance[0] * area.light_area[0]   # one-sided Lambertian
+    np.testing.assert_allclose(4 * np.pi * point.point_light_intensity[0], phi_area, rtol=1e-12)
+    centre = area.light_origin[0] + 0.5 * (area.light_edge1[0] + area.light_edge2[0])
+    np.testing.assert_allclose(point.point_light_position[0], [centre[0], 547.8, centre[2]], rtol=1e-12)
+
+
+def test_scene_rejects_bad_point_lights():
+    base = load_scene("furnace")
+    kw = {k: getattr(base, k) for k in base.__dataclass_fields__}
+    with pytest.raises(ValueError, match="point_light_position and point_light_intensity"):
+        type(base)(**{**kw, "point_light_position": np.zeros((2, 3)), "point_light_intensity": np.ones((1, 3))})
+    with pytest.raises(ValueError, match="non-negative"):
+        type(base)(**{**kw, "point_light_position": np.zeros((1, 3)), "point_light_intensity": -np.ones((1, 3))})

@@ -16,6 +16,8 @@ module             holds
                    ``direct_bsdf``; :func:`trace_paths`
 ``aov``            ``albedo``, ``normal``, ``depth``, ``raster``
 ``position``       the ``position`` AOV (the example of a one-module method)
+``light``          ``light`` (particle tracing); light and camera subpaths
+``bdpt``           ``bdpt``: every (s, t) strategy weighted by MIS
 ``radiosity``      ``radiosity``: finite-element radiosity (patches, form
                    factors, solve, first-hit lookup)
 ``photon``         ``photon``: photon tracing, photon maps, visible points,
@@ -32,11 +34,12 @@ from __future__ import annotations
 from .registry import KINDS, METHODS, Method, get_method, register
 from .film import BatchJob, BatchResult, Film, Render, camera_result, splat
 from .stream import SAMPLER_DIM, stream_dim
-from .emitters import Emitters, pdf_le, sample_le
+from .emitters import Emitters, LightOrigins, pdf_le, sample_le
 from .state import RR_MAX_DEPTH, RR_START_DEPTH, shadow_rays as _shadow_rays
 from .path import HEURISTICS, KERNELS, trace_camera_paths, trace_paths
 from .aov import aov_method
 from . import position  # noqa: F401  (registers the 'position' AOV: the example method)
+from . import light, bdpt  # noqa: F401  (register 'light' and 'bdpt', issue 11)
 from . import radiosity, photon, sppm  # noqa: F401  (register radiosity, photon, sppm)
 from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
                      estimate_render_bytes, render)
@@ -49,5 +52,5 @@ INTEGRATORS = tuple(METHODS)
 __all__ = ["INTEGRATORS", "HEURISTICS", "KERNELS", "KINDS", "METHODS", "Method", "register", "get_method",
            "BatchJob", "BatchResult", "Film", "Render", "splat", "camera_result", "render", "trace_paths",
            "trace_camera_paths", "WorkerPool", "PATHS_PER_BATCH", "MAX_RENDER_BYTES", "BYTES_PER_PATH",
-           "estimate_render_bytes", "SAMPLER_DIM", "stream_dim", "Emitters", "sample_le", "pdf_le",
+           "estimate_render_bytes", "SAMPLER_DIM", "stream_dim", "Emitters", "LightOrigins", "sample_le", "pdf_le",
            "aov_method", "RR_START_DEPTH", "RR_MAX_DEPTH"]

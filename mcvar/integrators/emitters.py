@@ -8,10 +8,12 @@
   Sampling'; :func:`mcvar.warps.area_to_solid_angle_pdf`). Its partner
   :meth:`Emitters.pdf_li` gives that density for an emitter *hit* by BSDF
   sampling (the MIS weight of emission found by chance).
-* Light subpaths (:func:`sample_le`, :func:`pdf_le`, pbrt-v4's
-  ``SampleLe``/``PDF_Le``): a point uniform by area on an area light and a
-  cosine-weighted direction about its emitting normal, for light tracing
-  and bidirectional methods.
+* Light subpaths (:class:`LightOrigins`, :func:`sample_le`, :func:`pdf_le`,
+  pbrt-v4's ``SampleLe``/``PDF_Le``): an emitting primitive or a point light
+  chosen by power, a point uniform by area on it and a cosine-weighted
+  direction about its emitting normal (a point light: uniform on the
+  sphere), for light tracing and bidirectional methods (issue 11). NEE also
+  samples point lights (after the area lights; MIS weight 1).
 """
 from __future__ import annotations
 
@@ -19,9 +21,9 @@ import numpy as np
 
 from ..geometry import Frame
 from ..warps import (area_to_solid_angle_pdf, square_to_cosine_hemisphere,
-                     square_to_cosine_hemisphere_pdf)
+                     square_to_cosine_hemisphere_pdf, square_to_uniform_sphere, square_to_uniform_triangle)
 
-__all__ = ["Emitters", "sample_le", "pdf_le"]
+__all__ = ["Emitters", "LightOrigins", "sample_le", "pdf_le"]
 
 
 def _dot(a, b):
@@ -38,7 +40,7 @@ class Emitters:
     Attributes
     ----------
     n_emitters : int
-        Area lights plus one for an environment.
+        Area lights, point lights, plus one for an environment.
     select_pdf : float
         ``1 / n_emitters`` (uniform choice), 0 without emitters.
     single_quad : bool
@@ -49,8 +51,9 @@ class Emitters:
     def __init__(self, scene):
         self.scene = scene
         self.n_lights = scene.n_lights
+        self.n_points = scene.n_point_lights
         self.env = scene.environment
-        self.n_emitters = self.n_lights + (1 if self.env is not None else 0)
+        self.n_emitters = self.n_lights + self.n_points + (1 if self.env is not None else 0)
         self.select_pdf = 1.0 / self.n_emitters if self.n_emitters else 0.0
         self.light_area = scene.light_area
         self.light_normal = scene.light_normal
@@ -59,13 +62,14 @@ class Emitters:
         self.normal_soa = np.ascontiguousarray(self.light_normal.T)          # (3, L)
         self.radiance_soa = np.ascontiguousarray(scene.light_radiance.T)     # (3, L)
         self.pdf_area = self.select_pdf / self.light_area if self.n_lights else np.zeros(0)
-        self.single_quad = self.n_lights == 1 and self.env is None
+        self.single_quad = self.n_lights == 1 and self.env is None and self.n_points == 0
 
     # -- next-event estimation -------------------------------------------------
 
     def choose(self, u_sel, m: int) -> np.ndarray:
         """Emitter index of ``m`` samples from ``u_sel`` in [0, 1] (None with one
-        emitter): lights ``0 .. L-1``, then ``L`` = the environment."""
+        emitter): lights ``0 .. L-1``, point lights ``L .. L+P-1``, then
+        ``L + P`` = the environment."""
         n_em = self.n_emitters
         if n_em <= 1:
             return np.zeros(m, dtype=np.int64)
@@ -96,7 +100,16 @@ class Emitters:
             Solid-angle density of ``w`` including the emitter choice; 0
             where the sample cannot contribute (back side, edge-on).
         light : ndarray of int, shape (m,)
-            Light index, -1 for the environment (for shadow keys).
+            Light index, -1 for the environment (for shadow keys), -2 for a
+            point light.
+
+        Notes
+        -----
+        A point light (a Dirac delta in solid angle, issue 11) returns ``le
+        = I / r^2`` and ``pdf`` = its selection probability, so that ``f le
+        cos / pdf`` is the estimate; BSDF sampling cannot hit it, so its MIS
+        weight is 1 (the caller passes a BSDF density of 0 for ``light ==
+        -2``).
         """
         m = p.shape[1]
         if self.single_quad:
@@ -111,13 +124,24 @@ class Emitters:
         if self.n_lights and np.any(on_light):
             sel = np.flatnonzero(on_light)
             w[:, sel], dist[sel], le[:, sel], pdf[sel] = self._area(p[:, sel], u[:, sel], k[sel])
-        if self.env is not None and not np.all(on_light):
-            sel = np.flatnonzero(~on_light)
+        on_point = (k >= self.n_lights) & (k < self.n_lights + self.n_points)
+        if self.n_points and np.any(on_point):
+            sel = np.flatnonzero(on_point)
+            j = k[sel] - self.n_lights
+            v = np.take(self.scene.point_light_position, j, axis=0).T - p[:, sel]
+            d2 = _dot(v, v)
+            r = np.sqrt(d2)
+            w[:, sel] = v / np.maximum(r, 1e-300)
+            dist[sel] = r
+            le[:, sel] = np.take(self.scene.point_light_intensity, j, axis=0).T / np.maximum(d2, 1e-300)
+            pdf[sel] = self.select_pdf
+        if self.env is not None and not np.all(on_light | on_point):
+            sel = np.flatnonzero(~(on_light | on_point))
             w_env, pdf_env = self.env.sample(u[:, sel].T)
             w[:, sel] = w_env.T
             le[:, sel] = self.env.radiance(w_env).T
             pdf[sel] = self.select_pdf * pdf_env
-        return w, dist, le, pdf, np.where(on_light, k, -1)
+        return w, dist, le, pdf, np.where(on_light, k, np.where(on_point, -2, -1))
 
     def _area(self, p, u, li):
         """Uniform points on lights ``li`` (None: the single light) seen from ``p``, SoA."""
@@ -174,74 +198,230 @@ class Emitters:
 
 # -- light subpaths ------------------------------------------------------------
 
-def _choose_light(scene, u0):
-    n = scene.n_lights
-    if n == 0:
-        raise ValueError(f"scene {scene.name!r} has no area light to start light subpaths from")
-    if n == 1:
-        return np.zeros(u0.shape[0], dtype=np.int64), u0
-    k = np.minimum((u0 * n).astype(np.int64), n - 1)
-    return k, np.clip(u0 * n - k, 0.0, 1.0)
+class LightOrigins:
+    """Every emitter of a scene as an origin of light subpaths (pbrt-v4's ``SampleLe``/``PDF_Le``).
 
-
-def sample_le(scene, u_pos, u_dir):
-    """Start light subpaths: a point on an area light and a direction leaving it.
-
-    The light is chosen uniformly (by ``u_pos[:, 0]``, rescaled), the point
-    uniformly by area on it (``u_pos``), the direction cosine-weighted about
-    its emitting normal (``u_dir``, Malley's method).
+    Emitting primitives (triangles and spheres: any primitive with emission,
+    so also the furnace's sphere and the checkerboard's plane, not only the
+    parallelogram lights NEE samples) and point lights, one chosen in
+    proportion to its power (mean over RGB): a primitive of area ``A`` emits
+    ``pi L A`` one-sided or ``2 pi L A`` two-sided, a point light ``4 pi
+    I``. The point is uniform by area on the chosen primitive; the direction
+    cosine-weighted about the emitting side's normal (a two-sided emitter
+    picks its side with probability 1/2), a point light's uniform over the
+    sphere. BDPT's ``s = 1`` strategy joins camera vertices to these same
+    origins, so its MIS weights see one light-sampling technique.
 
     Parameters
     ----------
     scene : mcvar.scene.Scene
-        With at least one area light (the environment is not sampled here).
+    """
+
+    def __init__(self, scene):
+        self.scene = scene
+        n_tri = scene.n_triangles
+        n_prim = n_tri + scene.n_spheres
+        tri = scene.triangles
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) if n_tri else np.zeros((0, 3))
+        twice = np.linalg.norm(cross, axis=1)
+        #: unit geometric normals of the triangles (the emitting side of one-sided ones)
+        self.triangle_normal = cross / np.maximum(twice, 1e-300)[:, None]
+        prims = np.flatnonzero(np.any(scene.prim_emission > 0.0, axis=1))
+        self.prims = prims
+        is_tri = prims < n_tri
+        area = np.empty(prims.size)
+        area[is_tri] = 0.5 * twice[prims[is_tri]]
+        area[~is_tri] = 4.0 * np.pi * scene.sphere_radii[prims[~is_tri] - n_tri] ** 2
+        two = scene.prim_two_sided_emission[prims]
+        power = np.concatenate([scene.prim_emission[prims].mean(axis=1) * area * np.pi * (1.0 + two),
+                                4.0 * np.pi * scene.point_light_intensity.mean(axis=1)])
+        total = power.sum()
+        self.count = power.size
+        #: choice probability of every origin (emitting primitives, then point lights)
+        self.pmf = power / total if total > 0 else np.zeros(power.size)
+        self.cdf = np.cumsum(self.pmf)
+        #: per primitive: choice probability and area (0 and 1 if it does not emit)
+        self.prim_select = np.zeros(n_prim)
+        self.prim_select[prims] = self.pmf[:prims.size]
+        self.prim_area = np.ones(n_prim)
+        self.prim_area[prims] = area
+
+    @property
+    def empty(self) -> bool:
+        """No emitter with positive power: light subpaths cannot start."""
+        return self.count == 0 or not self.cdf[-1] > 0
+
+    def normals(self, prim, p):
+        """Unit geometric normals (n, 3) of primitives ``prim`` at points ``p`` (spheres: outward)."""
+        n_tri = self.scene.n_triangles
+        out = np.zeros((prim.shape[0], 3))
+        tri = prim < n_tri
+        out[tri] = self.triangle_normal[prim[tri]]
+        if not np.all(tri):
+            j = prim[~tri] - n_tri
+            out[~tri] = (p[~tri] - self.scene.sphere_centers[j]) / self.scene.sphere_radii[j][:, None]
+        return out
+
+    def sample(self, u_pos, u_dir):
+        """Light-subpath origins from ``u_pos``, ``u_dir`` (n, 2) in [0, 1]^2.
+
+        The origin is chosen by ``u_pos[:, 0]`` (rescaled into the chosen
+        interval of the CDF, so stratification survives), the point by
+        ``u_pos``, the direction by ``u_dir``. Returns a dict: ``p``, ``n``
+        (emitting-side unit normal, 0 for point lights), ``w`` (direction),
+        ``prim`` (-1 for point lights), ``point`` (point-light index or -1),
+        ``pdf_pos`` (choice x area density; the choice alone for a point
+        light, a Dirac delta in position), ``pdf_dir`` (per steradian), ``le``
+        (radiance, or a point light's intensity, along ``w``) and ``cos`` (1
+        for point lights).
+        """
+        scene = self.scene
+        u_pos = np.array(u_pos, dtype=np.float64).reshape(-1, 2)
+        u_dir = np.array(u_dir, dtype=np.float64).reshape(-1, 2)
+        n = u_pos.shape[0]
+        if self.empty:
+            raise ValueError(f"scene {scene.name!r} has no emitter to start light subpaths from")
+        k = np.minimum(np.searchsorted(self.cdf, u_pos[:, 0] * self.cdf[-1], side="right"), self.count - 1)
+        lo = np.where(k > 0, np.take(self.cdf, k - 1), 0.0)
+        u_pos[:, 0] = np.clip(np.divide(u_pos[:, 0] - lo, np.take(self.pmf, k), out=np.zeros(n),
+                                        where=np.take(self.pmf, k) > 0), 0.0, 1.0)
+        n_area = self.prims.size
+        p = np.zeros((n, 3))
+        nrm = np.zeros((n, 3))
+        prim = np.full(n, -1)
+        point = np.full(n, -1)
+        pdf_pos = np.take(self.pmf, k)
+        le = np.zeros((n, 3))
+        w = np.zeros((n, 3))
+        pdf_dir = np.zeros(n)
+        cos = np.ones(n)
+        ia = np.flatnonzero(k < n_area)
+        if ia.size:
+            pr = self.prims[k[ia]]
+            prim[ia] = pr
+            n_tri = scene.n_triangles
+            tri = pr < n_tri
+            it, isph = ia[tri], ia[~tri]
+            if it.size:
+                v = scene.triangles[pr[tri]]
+                b = square_to_uniform_triangle(u_pos[it])
+                p[it] = v[:, 0] + b[:, 0:1] * (v[:, 1] - v[:, 0]) + b[:, 1:2] * (v[:, 2] - v[:, 0])
+                nrm[it] = self.triangle_normal[pr[tri]]
+            if isph.size:
+                j = pr[~tri] - n_tri
+                d = square_to_uniform_sphere(u_pos[isph])
+                p[isph] = scene.sphere_centers[j] + scene.sphere_radii[j][:, None] * d
+                nrm[isph] = d
+            pdf_pos[ia] /= self.prim_area[pr]
+            two = scene.prim_two_sided_emission[pr]
+            u0 = u_dir[ia, 0]
+            back = two & (u0 >= 0.5)
+            u0 = np.clip(np.where(two, np.where(back, 2.0 * u0 - 1.0, 2.0 * u0), u0), 0.0, 1.0)
+            local = square_to_cosine_hemisphere(np.column_stack([u0, u_dir[ia, 1]]))
+            fr = Frame(nrm[ia] * np.where(back, -1.0, 1.0)[:, None])
+            w[ia] = fr.to_world(local)
+            nrm[ia] = fr.n
+            cos[ia] = local[:, 1]
+            pdf_dir[ia] = square_to_cosine_hemisphere_pdf(local) * np.where(two, 0.5, 1.0)
+            le[ia] = self.emission(pr, p[ia], w[ia])
+        ip = np.flatnonzero(k >= n_area)
+        if ip.size:
+            j = k[ip] - n_area
+            point[ip] = j
+            p[ip] = scene.point_light_position[j]
+            le[ip] = scene.point_light_intensity[j]
+            w[ip] = square_to_uniform_sphere(u_dir[ip])
+            pdf_dir[ip] = 0.25 / np.pi
+        return dict(p=p, n=nrm, w=w, prim=prim, point=point, pdf_pos=pdf_pos, pdf_dir=pdf_dir, le=le, cos=cos)
+
+    def emission(self, prim, p, w):
+        """Radiance emitted by primitives ``prim`` at ``p`` towards unit ``w`` (leaving), (n, 3)."""
+        return self.scene.emission(prim, p, self.normals(prim, p), -w)
+
+    def pdf_dir(self, prim, p, w):
+        """Solid-angle density of emitting ``w`` from ``p`` on primitives ``prim``."""
+        c = np.einsum("ij,ij->i", self.normals(prim, p), w)
+        two = np.take(self.scene.prim_two_sided_emission, prim)
+        return np.where(two, 0.5 * np.abs(c), np.maximum(c, 0.0)) / np.pi
+
+    def pdf_pos(self, prim):
+        """Density (choice x area) of starting at a point of primitive ``prim``."""
+        return np.take(self.prim_select, prim) / np.take(self.prim_area, prim)
+
+    def light_le(self, point, prim, p, w):
+        """The 'BSDF' of light vertices ``y_0``: a point light's intensity, or the radiance towards ``w``."""
+        out = np.zeros((point.shape[0], 3))
+        pt = point >= 0
+        if np.any(pt):
+            out[pt] = self.scene.point_light_intensity[point[pt]]
+        if not np.all(pt):
+            out[~pt] = self.emission(prim[~pt], p[~pt], w[~pt])
+        return out
+
+    def light_pdf_dir(self, point, prim, p, w):
+        """Solid-angle density with which the origin ``y_0`` emits towards ``w``."""
+        out = np.full(point.shape[0], 0.25 / np.pi)
+        area = point < 0
+        if np.any(area):
+            out[area] = self.pdf_dir(prim[area], p[area], w[area])
+        return out
+
+
+def sample_le(scene, u_pos, u_dir):
+    """Start light subpaths: an origin on an emitter and a direction leaving it.
+
+    :class:`LightOrigins` of ``scene``: an emitting primitive or a point light
+    chosen by power (``u_pos[:, 0]``, rescaled), a point uniform by area
+    (``u_pos``), a cosine-weighted direction about its emitting normal, or
+    uniform on the sphere for a point light (``u_dir``).
+
+    Parameters
+    ----------
+    scene : mcvar.scene.Scene
+        With at least one emitter (the environment is not sampled here).
     u_pos, u_dir : ndarray, shape (n, 2)
         Uniform numbers in [0, 1]^2.
 
     Returns
     -------
     points, directions, normals : ndarray, shape (n, 3)
-        Point on the light, unit direction leaving it, the light's emitting normal.
+        Origin, unit direction leaving it, the emitting side's normal (0 for
+        a point light).
     le : ndarray, shape (n, 3)
-        Emitted radiance along ``directions``.
+        Emitted radiance along ``directions`` (a point light: its intensity).
     pdf_pos : ndarray, shape (n,)
-        Area density of the point, including the light choice: ``1 / (L A_k)``.
+        Area density of the origin including its choice (a point light: the
+        choice probability alone).
     pdf_dir : ndarray, shape (n,)
-        Solid-angle density of the direction: ``cos theta / pi``.
+        Solid-angle density of the direction (``cos theta / pi`` one-sided,
+        half that two-sided, ``1 / (4 pi)`` for a point light).
     light : ndarray of int, shape (n,)
-        Index of the light.
+        The emitting primitive, or ``-1 - j`` for point light ``j``.
 
     Notes
     -----
-    The emitted power estimate of one sample is ``le cos / (pdf_pos
-    pdf_dir) = pi L A_k Le`` (pbrt-v4, section 12.5 ``SampleLe``).
+    One sample's estimate of the emitted power is ``le cos / (pdf_pos
+    pdf_dir)`` (pbrt-v4, section 12.5 ``SampleLe``): ``pi L A_k / p_k`` for
+    an area emitter chosen with probability ``p_k``.
     """
-    u_pos = np.array(u_pos, dtype=np.float64).reshape(-1, 2)
-    u_dir = np.asarray(u_dir, dtype=np.float64).reshape(-1, 2)
-    if u_pos.shape != u_dir.shape:
-        raise ValueError(f"u_pos and u_dir must both be (n, 2); got {u_pos.shape} and {u_dir.shape}")
-    k, u_pos[:, 0] = _choose_light(scene, u_pos[:, 0])
-    o = np.take(scene.light_origin, k, axis=0)
-    points = o + u_pos[:, :1] * np.take(scene.light_edge1, k, axis=0) \
-        + u_pos[:, 1:] * np.take(scene.light_edge2, k, axis=0)
-    normals = np.take(scene.light_normal, k, axis=0)
-    local = square_to_cosine_hemisphere(u_dir)
-    directions = Frame(normals).to_world(local)
-    pdf_pos = 1.0 / (scene.n_lights * np.take(scene.light_area, k))
-    pdf_dir = square_to_cosine_hemisphere_pdf(local)
-    le = np.where((pdf_dir > 0.0)[:, None], np.take(scene.light_radiance, k, axis=0), 0.0)
-    return points, directions, normals, le, pdf_pos, pdf_dir, k
+    s = LightOrigins(scene).sample(u_pos, u_dir)
+    light = np.where(s["point"] >= 0, -1 - s["point"], s["prim"])
+    return s["p"], s["w"], s["n"], s["le"], s["pdf_pos"], s["pdf_dir"], light
 
 
-def pdf_le(scene, light, directions):
-    """Densities with which :func:`sample_le` starts on ``light`` (n,) leaving along ``directions`` (n, 3).
+def pdf_le(scene, light, points, directions):
+    """Densities with which :func:`sample_le` starts at ``points`` on ``light`` (n,) along ``directions``.
 
-    Returns ``(pdf_pos, pdf_dir)``: ``1 / (L A_k)`` per unit area and
-    ``max(cos theta, 0) / pi`` per steradian (0 behind the light).
+    Returns ``(pdf_pos, pdf_dir)``: choice x area density (the choice alone
+    for a point light, ``light = -1 - j``) and the solid-angle density of
+    the direction (0 behind a one-sided emitter).
     """
+    origins = LightOrigins(scene)
     light = np.asarray(light, dtype=np.int64).reshape(-1)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    if scene.n_lights == 0:
-        raise ValueError(f"scene {scene.name!r} has no area light")
-    cos = np.einsum("ij,ij->i", np.take(scene.light_normal, light, axis=0), directions)
-    return 1.0 / (scene.n_lights * np.take(scene.light_area, light)), np.maximum(cos, 0.0) / np.pi
+    point = np.where(light < 0, -1 - light, -1)
+    prim = np.maximum(light, 0)
+    pdf_pos = np.where(light < 0, np.take(origins.pmf, origins.prims.size + np.maximum(point, 0)),
+                       origins.pdf_pos(prim))
+    return pdf_pos, origins.light_pdf_dir(point, prim, points, directions)

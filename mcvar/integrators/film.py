@@ -101,7 +101,7 @@ def splat(sum_array, pixel_index, values) -> None:
     it does not drop repeats, and is faster than ``np.add.at``).
     """
     pixel_index = np.asarray(pixel_index, dtype=np.int64).reshape(-1)
-    values = np.asarray(values, dtype=np.float64).reshape(pixel_index.shape[0], -1)
+    values = np.asarray(values, dtype=np.float64).reshape(pixel_index.shape[0], sum_array.shape[1])
     n_pix = sum_array.shape[0]
     if pixel_index.size and (pixel_index.min() < 0 or pixel_index.max() >= n_pix):
         raise ValueError(f"pixel_index must lie in [0, {n_pix}); got [{pixel_index.min()}, {pixel_index.max()}]")

@@ -292,6 +292,8 @@ def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, 
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.abs(wi_l[1]) / np.where(pdf_l > 0, pdf_l, np.inf)
     if tr.mis:
+        if tr.emitters.n_points:
+            pdf_b[light == -2] = 0.0        # a point light: BSDF sampling cannot hit it, weight 1
         scale *= tr.weight_fn(pdf_l, pdf_b)
     contrib = state.beta * f
     contrib *= le

@@ -3,9 +3,10 @@
 The lecture's 'Photon Mapping' slide: "trace particles from the light,
 deposit 'photons' in a KD-tree". Two estimators built on the same parts:
 
-* :func:`trace_photons` emits photons from the area lights (a light chosen
-  uniformly, a uniform point and a cosine-weighted direction:
-  :func:`~mcvar.integrators.emitters.sample_le`; power ``pi L A Le / N`` each),
+* :func:`trace_photons` emits photons from the area lights and point lights
+  (:func:`~mcvar.integrators.emitters.sample_le`: an emitter chosen by power,
+  a uniform point and a cosine-weighted direction, or a uniform direction
+  from a point light),
   follows them through the scene with the BSDFs' ``sample`` (Russian
   roulette after :data:`RR_START_DEPTH` segments keeps the power per photon
   about constant), and yields, batch by batch, a photon at every non-delta
@@ -78,21 +79,23 @@ POINTS_PER_CHUNK = 4096
 def check_photon_scene(scene: Scene) -> None:
     """Raise ``ValueError`` for what photon emission here cannot handle.
 
-    Photons leave the scene's area lights only: emission of primitives that
-    belong to no light (e.g. the furnace's glowing sphere) and environment
-    maps would be missing from the photon map.
+    Photons leave the scene's area lights and point lights
+    (:func:`~mcvar.integrators.emitters.sample_le`); emission of primitives
+    that belong to no area light (e.g. the furnace's glowing sphere) and
+    environment maps are not emitted, so they would be missing from the
+    photon map.
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a mcvar.scene.Scene; got {type(scene).__name__}")
-    if scene.n_lights == 0:
-        raise ValueError(f"scene {scene.name!r} has no area light to emit photons from")
+    if scene.n_lights + scene.n_point_lights == 0:
+        raise ValueError(f"scene {scene.name!r} has no area light or point light to emit photons from")
     stray = np.any(scene.prim_emission > 0, axis=1) & (scene.prim_light < 0)
     if np.any(stray):
         raise ValueError(f"scene {scene.name!r} has {int(stray.sum())} emitting primitive(s) that belong to "
-                         "no area light; photons are emitted only from area lights")
+                         "no area light; photons are emitted only from area and point lights")
     if scene.environment is not None:
         raise ValueError(f"scene {scene.name!r} has an environment map; photons are emitted only from "
-                         "area lights")
+                         "area and point lights")
 
 
 # ---------------------------------------------------------------------------
@@ -160,17 +163,19 @@ class PhotonBatch:
 
 
 def _emit(scene: Scene, n: int, n_total: int, rng):
-    """``n`` photons leaving the area lights (:func:`~mcvar.integrators.emitters.sample_le`).
+    """``n`` photons leaving the lights (:func:`~mcvar.integrators.emitters.sample_le`).
 
-    A light chosen uniformly among ``L``, a uniform point on it and a
-    cosine-weighted direction give the flux
-    ``Le cos / (pdf_pos pdf_dir) / N = pi L A_l Le / N`` per photon
+    An emitter chosen by power with probability ``p_k``; on an area light a
+    uniform point and a cosine-weighted direction, flux
+    ``Le cos / (pdf_pos pdf_dir) / N = pi A_k Le / (p_k N)``; from a point
+    light of intensity ``I`` a uniform direction, flux ``4 pi I / (p_k N)``
     (pbrt-v4, sec. 12.5).
     """
     x, d, nrm, le, pdf_pos, pdf_dir, _ = sample_le(scene, rng.random((n, 2)), rng.random((n, 2)))
-    cos = np.einsum("ij,ij->i", nrm, d)
+    point = ~np.any(nrm != 0.0, axis=1)                 # point lights: no surface, no cosine
+    cos = np.where(point, 1.0, np.abs(np.einsum("ij,ij->i", nrm, d)))
     with np.errstate(divide="ignore", invalid="ignore"):
-        flux = np.where((pdf_dir > 0)[:, None], le * (cos / (pdf_pos * pdf_dir * n_total))[:, None], 0.0)
+        flux = np.where((pdf_dir * pdf_pos > 0)[:, None], le * (cos / (pdf_pos * pdf_dir * n_total))[:, None], 0.0)
     return x, d, flux, nrm
 
 

@@ -99,6 +99,9 @@ def check_diffuse(scene: Scene) -> None:
     if scene.n_spheres:
         raise ValueError(f"radiosity meshes triangles only; scene {scene.name!r} has "
                          f"{scene.n_spheres} sphere(s)")
+    if getattr(scene, "n_point_lights", 0):
+        raise ValueError(f"radiosity transports light between patches; scene {scene.name!r} has "
+                         f"{scene.n_point_lights} point light(s), which no patch can hold")
     if scene.n_triangles == 0:
         raise ValueError(f"scene {scene.name!r} has no triangles to mesh into patches")
 
