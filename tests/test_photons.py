@@ -92,6 +92,27 @@ def test_photon_power_in_a_closed_room_sums_to_the_geometric_series():
     assert np.all(np.abs(mean - phi / (1 - rho)) <= Z * se), (mean, phi / (1 - rho), se)
 
 
+def test_point_light_photons_carry_its_power():
+    import dataclasses
+
+    rho = 0.5
+    cube = _lit_cube(rho)
+    n = cube.triangles.shape[0]
+    intensity = np.array([3.0, 2.0, 1.0])
+    scene = dataclasses.replace(cube, prim_emission=np.zeros((n, 3)), prim_light=np.full(n, -1),
+                                light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)),
+                                light_edge2=np.zeros((0, 3)), light_radiance=np.zeros((0, 3)),
+                                point_light_position=np.array([[0.5, 0.5, 0.5]]),
+                                point_light_intensity=intensity[None])
+    batches = list(trace_photons(scene, 1 << 14, rng=SEED, batch=1 << 10))
+    direct = np.array([b.power[b.depth == 1].sum(axis=0) for b in batches]).sum(axis=0)
+    # a closed room: every photon lands, each with 4 pi I / N
+    np.testing.assert_allclose(direct, 4 * np.pi * intensity, rtol=1e-9)
+    totals = np.array([b.power.sum(axis=0) for b in batches])
+    se = totals.std(axis=0, ddof=1) * np.sqrt(len(batches))
+    assert np.all(np.abs(totals.sum(axis=0) - 4 * np.pi * intensity / (1 - rho)) <= Z * se)
+
+
 @pytest.fixture(scope="module")
 def cornell_rays():
     """16 x 16 Cornell camera rays (4 per pixel) and a path-traced reference for
