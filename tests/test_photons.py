@@ -158,6 +158,17 @@ def test_photon_map_bias_shrinks_with_radius_and_agrees_with_path(cornell_rays):
     assert np.all(np.abs(per_rep.mean(0) - ref_mean) <= Z * se), (per_rep.mean(0), ref_mean, se)
 
 
+def test_fixed_radius_estimate_does_not_depend_on_its_chunks(cornell_rays, monkeypatch):
+    import mcvar.integrators.photon as photon
+
+    scene, tracer, o, d, _, _ = cornell_rays
+    vp = visible_points(scene, tracer, o, d, rng=SEED)
+    pm = build_photon_map(scene, 1 << 13, rng=SEED, tracer=tracer)
+    whole = photon_map_radiance(scene, pm, vp, radius=30.0)
+    monkeypatch.setattr(photon, "PAIRS_PER_CHUNK", 1000)       # hundreds of chunks
+    np.testing.assert_allclose(photon_map_radiance(scene, pm, vp, radius=30.0), whole, rtol=1e-12, atol=0)
+
+
 def test_k_nearest_bias_shrinks_with_k(cornell_rays):
     scene, tracer, o, d, ref, ref_var = cornell_rays
     vp = visible_points(scene, tracer, o, d, rng=SEED)

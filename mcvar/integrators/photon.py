@@ -72,8 +72,10 @@ PHOTONS_PER_BATCH = 1 << 16
 RR_START_DEPTH = 3
 #: Safety cap on segments under Russian roulette (as the path tracer's).
 RR_MAX_DEPTH = 1024
-#: Visible points per density-estimation chunk (bounds the (points x photons) pair lists).
+#: Visible points per density-estimation chunk (k nearest: bounds the (points x k) arrays).
 POINTS_PER_CHUNK = 4096
+#: (visible point, photon) pairs per chunk of a fixed-radius estimate (~100 MB of temporaries).
+PAIRS_PER_CHUNK = 1 << 19
 
 
 def check_photon_scene(scene: Scene) -> None:
@@ -435,8 +437,14 @@ def photon_map_radiance(scene: Scene, pm: PhotonMap, vp: VisiblePoints, *, k: in
     if pm.tree is None or rows.size == 0:
         return out
     ph = pm.photons
-    for s in range(0, rows.size, POINTS_PER_CHUNK):
-        r = rows[s:s + POINTS_PER_CHUNK]
+    if k is not None:
+        chunks = [rows[s:s + POINTS_PER_CHUNK] for s in range(0, rows.size, POINTS_PER_CHUNK)]
+    else:
+        # chunks of about PAIRS_PER_CHUNK pairs, from the number of photons around each point
+        n_near = pm.tree.query_ball_point(vp.position[rows], radius, return_length=True)
+        cuts = np.arange(1, 1 + n_near.sum() // PAIRS_PER_CHUNK) * PAIRS_PER_CHUNK
+        chunks = [c for c in np.split(rows, np.unique(np.searchsorted(np.cumsum(n_near), cuts))) if c.size]
+    for r in chunks:
         x = vp.position[r]
         if k is not None:
             kk = min(k, ph.n)
@@ -456,8 +464,6 @@ def photon_map_radiance(scene: Scene, pm: PhotonMap, vp: VisiblePoints, *, k: in
         with np.errstate(divide="ignore", invalid="ignore"):
             out[r] += np.where(r2[:, None] > 0, contrib / (np.pi * r2[:, None]), 0.0)
     return out
-
-
 
 
 # ---------------------------------------------------------------------------

@@ -345,8 +345,8 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
     is triangle ``t`` at point ``y`` lands on the patch :meth:`Patches.locate`
     gives, on the side its direction arrives from (front if
     ``d . n_t < 0``). Work is cut into chunks of about
-    :data:`RAYS_PER_CHUNK` rays, so memory is bounded by the chunk and the
-    sparse counts (at most one non-zero per ray).
+    :data:`RAYS_PER_CHUNK` rays, summed into the sparse counts chunk by chunk,
+    so memory is bounded by the chunk and the distinct side pairs hit.
     """
     m = check_count(rays_per_side, "rays_per_side")
     m_e = check_count(emitter_rays, "emitter_rays")
@@ -361,7 +361,7 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         per_side[emitting] = np.maximum(m, np.ceil(m_e * share).astype(np.int64))
     ends = np.cumsum(per_side)
     total = int(ends[-1])
-    rows, cols = [], []
+    counts = None
     env = np.zeros((n_side, 3))
     emission = np.zeros((n_side, 3))
     eps = float(scene.ray_epsilon)
@@ -394,13 +394,11 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         y = x[ok] + hit.t[ok, None] * d[ok]
         j = patches.locate(prim, _barycentrics(scene, prim, y))
         back = np.einsum("ij,ij->i", d[ok], tracer.triangle_normal[prim]) > 0.0
-        rows.append(s[ok])
-        cols.append(2 * j + back)
+        # summed chunk by chunk: memory holds the distinct (i, j) pairs, not one entry per ray
+        chunk = sp.coo_matrix((np.ones(int(ok.sum())), (s[ok], 2 * j + back)), shape=(n_side, n_side)).tocsr()
+        counts = chunk if counts is None else counts + chunk
         if progress is not None:
             progress(int(ends[last - 1]), total)
-    r = np.concatenate(rows)
-    col = np.concatenate(cols)
-    counts = sp.coo_matrix((np.ones(r.size), (r, col)), shape=(n_side, n_side)).tocsr()
     counts.sum_duplicates()
     return FormFactors(counts=counts, rays_per_side=per_side, area=area, env_irradiance=env,
                        emission=emission, rays=total)
