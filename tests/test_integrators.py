@@ -286,7 +286,8 @@ def test_bad_types(cornell):
 
 def test_integrator_names_are_the_documented_ones():
     assert set(INTEGRATORS) == {"path", "path_bsdf", "direct", "direct_light", "direct_bsdf",
-                                "albedo", "normal", "depth", "raster", "position"}
+                                "albedo", "normal", "depth", "raster", "position", "light", "bdpt",
+                                "radiosity", "photon", "sppm"}
 
 
 def test_shadow_rays_stop_short_of_the_light_plane_at_grazing_angles():
