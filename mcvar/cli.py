@@ -6,7 +6,6 @@ Subcommands::
     mcvar render    cornell --spp 64 ...     one image, .npy (linear), .png (sRGB) or .exr
     mcvar converge  TARGET --out DIR         variance / bias / MSE / efficiency vs spp report
     mcvar demo      [--out DIR]              the default Cornell-box convergence report
-    mcvar chart     --out DIR [--quick]      the lecture's rendering-methods chart, measured
 
 Each subcommand parses its options and calls one library function; all the
 work (and its validation) lives in the library so notebooks and tests use the
@@ -97,15 +96,6 @@ def _cmd_demo(args) -> int:
     return 0
 
 
-def _cmd_chart(args) -> int:
-    from .chart_figure import chart
-
-    paths = chart(args.out, quick=args.quick, workers=args.workers, progress=not args.quiet)
-    for key, path in paths.items():
-        print(f"{key}: {path}")
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mcvar", description="Monte Carlo estimation and its variance, measured.")
@@ -182,17 +172,6 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(report.html, CSVs, PNGs). Re-running reuses finished runs.")
     p.add_argument("--out", type=Path, default=Path("demo-report"), help="output folder (default demo-report)")
     p.set_defaults(func=_cmd_demo)
-
-    p = sub.add_parser("chart", parents=[quiet], help="the lecture's rendering-methods chart, measured",
-                       description="Run every registered rendering method on the Cornell box at "
-                                   "increasing spp (or photons, iterations, mesh refinement), test "
-                                   "bias and consistency against one cached reference, and write "
-                                   "chart.csv, chart.html and chart.png beside the lecture's answers. "
-                                   "Re-running reuses finished runs (DIR/cache).")
-    p.add_argument("--out", type=Path, default=Path("out/chart"), help="output folder (default out/chart)")
-    p.add_argument("--quick", action="store_true", help="16 x 16, levels 1,4,16,64, 6 replicates (< 2 min)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-    p.set_defaults(func=_cmd_chart)
     return parser
 
 

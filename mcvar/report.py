@@ -39,7 +39,7 @@ __all__ = ["convergence_report", "demo", "write_report", "DEMO_SETTINGS"]
 
 #: What ``mcvar demo`` runs (chosen to take about two minutes on 2 cores).
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64, 256), replicates=8, res=32, seed=0, chart=True)
+                     spp=(1, 4, 16, 64, 256), replicates=8, res=32, seed=0)
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
 
@@ -384,18 +384,9 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
     :data:`DEMO_SETTINGS`: path tracing with Russian roulette (unbiased),
     path tracing stopped at depth 2 (biased: indirect light is missing) and
     direct lighting, each with the random, jittered and Sobol samplers at
-    1, 4, 16 and 64 spp, 8 replicates, 32 x 32 pixels. With
-    ``DEMO_SETTINGS['chart']`` it adds the measured rendering-methods chart
-    of ``mcvar chart --quick`` in ``out/chart`` (keys ``chart_csv``,
-    ``chart_png``, ``chart_html``).
+    1, 4, 16 and 64 spp, 8 replicates, 32 x 32 pixels.
     """
     s = DEMO_SETTINGS
-    paths = convergence_report(scene_target("cornell", res=s["res"]), out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
-                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
-                               workers=workers, progress=progress)
-    if s.get("chart", False):
-        from .chart_figure import chart
-
-        found = chart(Path(out) / "chart", quick=True, workers=workers, progress=progress)
-        paths.update({f"chart_{key}": path for key, path in found.items()})
-    return paths
+    return convergence_report(scene_target("cornell", res=s["res"]), out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
+                              replicates=s["replicates"], res=s["res"], seed=s["seed"],
+                              workers=workers, progress=progress)

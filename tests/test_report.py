@@ -105,7 +105,7 @@ def test_cli_converge_on_an_integrand(tmp_path, capsys):
 def test_demo_runs_its_settings(tmp_path, monkeypatch, capsys):
     pytest.importorskip("mcvar.integrators")
     tiny = dict(report.DEMO_SETTINGS, methods=("path", "path:2"), samplers=("random",), spp=(1, 4, 16),
-                replicates=3, res=4, chart=False)
+                replicates=3, res=4)
     monkeypatch.setattr(report, "DEMO_SETTINGS", tiny)
     assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
     page = (tmp_path / "report.html").read_text()
