@@ -125,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--res", type=int, default=64, help="image width and height in pixels (default 64)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
     p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
-                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster")
+                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster, "
+                                                          "position: any method of mcvar.integrators.METHODS")
     p.add_argument("--sampler", default="random", help="pixel sampler name from mcvar.samplers (default random)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
