@@ -18,6 +18,11 @@ module             holds
 ``position``       the ``position`` AOV (the example of a one-module method)
 ``light``          ``light`` (particle tracing); light and camera subpaths
 ``bdpt``           ``bdpt``: every (s, t) strategy weighted by MIS
+``radiosity``      ``radiosity``: finite-element radiosity (patches, form
+                   factors, solve, first-hit lookup)
+``photon``         ``photon``: photon tracing, photon maps, visible points,
+                   density estimation (Jensen 1996)
+``sppm``           ``sppm``: stochastic progressive photon mapping
 ``driver``         :func:`render`, :class:`WorkerPool`, batches and seeds
 ``pssmlt``         primary-sample-space Metropolis light transport (``chain``)
 =================  ===========================================================
@@ -36,6 +41,7 @@ from .path import HEURISTICS, KERNELS, trace_camera_paths, trace_paths
 from .aov import aov_method
 from . import position  # noqa: F401  (registers the 'position' AOV: the example method)
 from . import light, bdpt  # noqa: F401  (register 'light' and 'bdpt', issue 11)
+from . import radiosity, photon, sppm  # noqa: F401  (register radiosity, photon, sppm)
 from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
                      estimate_render_bytes, render)
 from .stream import WHOLE_SET_FLOATS, sample_slices as _sample_slices
