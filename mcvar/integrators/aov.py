@@ -22,7 +22,7 @@ import numpy as np
 
 from .film import BatchJob, BatchResult, camera_result
 from .registry import Method, register
-from .stream import CAMERA_DIMS, SampleStream
+from .stream import camera_rays
 
 __all__ = ["FirstHit", "aov_method", "run_first_hit_batch"]
 
@@ -110,10 +110,8 @@ def run_first_hit_batch(shade, job: BatchJob, miss=None) -> BatchResult:
     """``run_batch`` of a first-hit method: ``shade(FirstHit) -> (m, 3)`` at the hits,
     ``miss(FirstHit, rows) -> (k, 3)`` for rays that hit nothing (default 0)."""
     n = job.n_pixels * job.spp
-    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
-    offsets = SampleStream(job.u, job.rng).columns(0, CAMERA_DIMS, np.arange(n))
-    d = job.scene.camera.ray_directions(job.res, pixel, offsets.T)
-    o = np.ascontiguousarray(np.broadcast_to(job.scene.camera.position, d.shape))
+    _, o, d, _ = camera_rays(job)
+    o = np.ascontiguousarray(o)
     h = FirstHit(job.scene, job.tracer, o, d)
     out = np.zeros((n, 3))
     if miss is not None and job.scene.environment is not None and h.rows.size < n:

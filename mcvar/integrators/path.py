@@ -49,7 +49,7 @@ from .lambertian import trace_lambertian
 from .registry import Method, register
 from .state import (RR_MAX_DEPTH, RR_START_DEPTH, PathState, SceneTables, Transport, dot, roulette,
                     shadow_rays)
-from .stream import BSDF, CAMERA_DIMS, LIGHT, LIGHT_SELECT, SampleStream
+from .stream import BSDF, CAMERA_DIMS, LIGHT, LIGHT_SELECT, SampleStream, camera_rays
 
 __all__ = ["HEURISTICS", "KERNELS", "trace_paths", "trace_camera_paths"]
 
@@ -328,20 +328,9 @@ def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, 
 # ---------------------------------------------------------------------------
 # The registered methods
 
-def _camera_rays(job: BatchJob):
-    """Pixel index, SoA camera rays and the sample stream of a camera batch."""
-    n_pix, spp = job.n_pixels, job.spp
-    pixel = np.repeat(np.arange(n_pix), spp)
-    stream = SampleStream(job.u, job.rng)
-    offsets = stream.columns(0, CAMERA_DIMS, np.arange(n_pix * spp))
-    d = job.scene.camera.ray_directions_soa(job.res, pixel, offsets.T)
-    o = np.broadcast_to(job.scene.camera.position[:, None], d.shape)
-    return pixel, o, d, stream
-
-
 def run_path_batch(name: str, job: BatchJob) -> BatchResult:
     """``run_batch`` of the path-tracing and direct-lighting methods (``partial(run_path_batch, name)``)."""
-    _, o, d, stream = _camera_rays(job)
+    _, o, d, stream = camera_rays(job, soa=True)
     radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.max_depth, job.heuristic,
                             job.options["kernel"], job.options["light_sampling"], job.options["rr_depth"])
     return camera_result(job, radiance, rays, name)

@@ -60,7 +60,7 @@ from ..tracer import Tracer
 from .emitters import sample_le
 from .film import BatchJob, BatchResult, camera_result
 from .registry import Method, register
-from .stream import CAMERA_DIMS, SampleStream
+from .stream import camera_rays
 
 __all__ = ["PhotonBatch", "PhotonMap", "VisiblePoints", "trace_photons", "build_photon_map",
            "visible_points", "photon_map_radiance", "check_photon_scene", "check_photon_method_scene",
@@ -509,12 +509,8 @@ def _prepare_photon(scene, options, rng) -> PhotonMap:
 
 def run_photon_batch(job: BatchJob) -> BatchResult:
     """``run_batch`` of ``photon``: visible points of this batch's camera rays, density estimate."""
-    n = job.n_pixels * job.spp
-    rows = np.arange(n)
-    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
-    offsets = SampleStream(job.u, job.rng).columns(0, CAMERA_DIMS, rows)
-    d = job.scene.camera.ray_directions(job.res, pixel, offsets.T)
-    o = np.ascontiguousarray(np.broadcast_to(job.scene.camera.position, d.shape))
+    _, o, d, _ = camera_rays(job)
+    o = np.ascontiguousarray(o)
     vp = visible_points(job.scene, job.tracer, o, d, rng=job.rng)
     k, radius = job.options["k"], job.options["radius"]
     if k is None and radius is None:

@@ -71,7 +71,7 @@ from ..tracer import Tracer
 from ..warps import square_to_cosine_hemisphere, square_to_uniform_triangle
 from .film import BatchJob, BatchResult, camera_result
 from .registry import Method, register
-from .stream import CAMERA_DIMS, SampleStream
+from .stream import camera_rays
 
 __all__ = ["Patches", "FormFactors", "Radiosity", "check_diffuse", "mesh_patches",
            "form_factors", "solve_radiosity", "radiosity", "SOLVERS", "run_radiosity_batch"]
@@ -593,11 +593,8 @@ def _prepare_radiosity(scene, options, rng) -> Radiosity:
 def run_radiosity_batch(job: BatchJob) -> BatchResult:
     """``run_batch`` of ``radiosity``: look the solved radiosity up at every camera ray's first hit."""
     n = job.n_pixels * job.spp
-    rows = np.arange(n)
-    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
-    offsets = SampleStream(job.u, job.rng).columns(0, CAMERA_DIMS, rows)
-    d = job.scene.camera.ray_directions(job.res, pixel, offsets.T)
-    o = np.ascontiguousarray(np.broadcast_to(job.scene.camera.position, d.shape))
+    _, o, d, _ = camera_rays(job)
+    o = np.ascontiguousarray(o)
     return camera_result(job, job.prepared.radiance(job.scene, job.tracer, o, d), n, "radiosity")
 
 

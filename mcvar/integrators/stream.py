@@ -33,7 +33,7 @@ import numpy as np
 
 from ..samplers import pixel_samples
 
-__all__ = ["CAMERA_DIMS", "VERTEX_DIMS", "LIGHT", "BSDF", "ROULETTE", "LIGHT_SELECT",
+__all__ = ["camera_rays", "CAMERA_DIMS", "VERTEX_DIMS", "LIGHT", "BSDF", "ROULETTE", "LIGHT_SELECT",
            "SAMPLER_DIM", "WHOLE_SET_FLOATS", "stream_dim", "SampleStream", "sample_slices",
            "batch_stream"]
 
@@ -146,3 +146,23 @@ def batch_stream(sampler: str, n_pix: int, spp: int, dim: int, whole, rng):
             rest = pixel_samples(sampler, n_pix, spp, dim=dim - have + 2, rng=rng)[:, :, 2:]
             u = np.concatenate([whole, rest], axis=2)
     return np.ascontiguousarray(u).reshape(n_pix * spp, dim)
+
+
+def camera_rays(job, *, soa: bool = False):
+    """The camera rays of a batch: ``(pixel, origins, directions, stream)``.
+
+    Path ``i`` of the batch belongs to pixel ``i // spp`` (pixel-major) and
+    takes its position in the pixel from columns 0-1 of its sample stream.
+    Directions are ``(n, 3)``, or ``(3, n)`` with ``soa=True`` (the wavefront
+    layout); origins broadcast to the same shape (a read-only view).
+    """
+    n = job.n_pixels * job.spp
+    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
+    stream = SampleStream(job.u, job.rng)
+    offsets = stream.columns(0, CAMERA_DIMS, np.arange(n))
+    cam = job.scene.camera
+    if soa:
+        d = cam.ray_directions_soa(job.res, pixel, offsets.T)
+        return pixel, np.broadcast_to(cam.position[:, None], d.shape), d, stream
+    d = cam.ray_directions(job.res, pixel, offsets.T)
+    return pixel, np.broadcast_to(cam.position, d.shape), d, stream
