@@ -54,8 +54,8 @@ CONFIGS = {
     "sobol, rr_depth=7": dict(sampler="sobol", rr_depth=7),
     "sobol, tiles, 2 workers": dict(sampler="sobol", adaptive=True, pilot_spp=0, rr_depth=None, workers=2),
     "random, adaptive": dict(sampler="random", adaptive=True),
-    "sobol, adaptive (mcvar render)": dict(sampler="sobol", adaptive=True),
-    "sobol, adaptive, 2 workers": dict(sampler="sobol", adaptive=True, workers=2),
+    "sobol, adaptive, 1 worker": dict(sampler="sobol", adaptive=True),
+    "sobol, adaptive, 2 workers (mcvar render)": dict(sampler="sobol", adaptive=True, workers=2),
     "sobol, adaptive, rr_depth=5": dict(sampler="sobol", adaptive=True, rr_depth=5),
     "sobol, adaptive, rr_depth=10": dict(sampler="sobol", adaptive=True, rr_depth=10),
     "sobol, adaptive, rr_depth=5, 2 workers": dict(sampler="sobol", adaptive=True, rr_depth=5, workers=2),
@@ -64,7 +64,7 @@ CONFIGS = {
     "halton, adaptive": dict(sampler="halton", adaptive=True),
 }
 #: The configuration ``mcvar render`` uses by default (see docs/performance.md).
-BEST = "sobol, adaptive (mcvar render)"
+BEST = "sobol, adaptive, 2 workers (mcvar render)"
 
 #: Optional configurations: Mitsuba 3's LLVM variant on the same scene
 #: (benchmarks/mitsuba_llvm_cornell.py), name -> its sampler plugin. Skipped
