@@ -14,6 +14,11 @@ tracer that :func:`~mcvar.integrators.render` builds before its clock starts
 (about 0.1 s of a 0.65 s Sobol render). The last line is the ratio of
 the best MSE x time to the previous default (``sobol``, 1 worker) and to the
 LLVM renderer's figure quoted in issue 14 (3.9e-6 s on a quiet machine).
+When Mitsuba 3's ``llvm_ad_rgb`` variant runs here (``mitsuba`` extra and a
+libLLVM >= 16, see ``--libllvm``), the same scene rendered by it is measured
+in the same interleaved run (``mitsuba_llvm_cornell.py``, its own process,
+timed after a warm-up, MSE against the same reference), and the last lines
+compare mcvar's best with it.
 
 A configuration is a dict of :func:`mcvar.integrators.render` keywords; with
 ``adaptive=True`` it runs :func:`mcvar.adaptive.render_adaptive` (the same
