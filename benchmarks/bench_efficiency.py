@@ -14,6 +14,11 @@ tracer that :func:`~mcvar.integrators.render` builds before its clock starts
 (about 0.1 s of a 0.65 s Sobol render). The last line is the ratio of
 the best MSE x time to the previous default (``sobol``, 1 worker) and to the
 LLVM renderer's figure quoted in issue 14 (3.9e-6 s on a quiet machine).
+When Mitsuba 3's ``llvm_ad_rgb`` variant runs here (``mitsuba`` extra and a
+libLLVM >= 16, see ``--libllvm``), the same scene rendered by it is measured
+in the same interleaved run (``mitsuba_llvm_cornell.py``, its own process,
+timed after a warm-up, MSE against the same reference), and the last lines
+compare mcvar's best with it.
 
 A configuration is a dict of :func:`mcvar.integrators.render` keywords; with
 ``adaptive=True`` it runs :func:`mcvar.adaptive.render_adaptive` (the same
@@ -29,6 +34,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -51,11 +59,45 @@ CONFIGS = {
     "sobol, rr_depth=7": dict(sampler="sobol", rr_depth=7),
     "sobol, tiles, 2 workers": dict(sampler="sobol", adaptive=True, pilot_spp=0, rr_depth=None, workers=2),
     "random, adaptive": dict(sampler="random", adaptive=True),
-    "sobol, adaptive (mcvar render)": dict(sampler="sobol", adaptive=True),
-    "sobol, adaptive, 2 workers": dict(sampler="sobol", adaptive=True, workers=2),
+    "sobol, adaptive, 1 worker": dict(sampler="sobol", adaptive=True),
+    "sobol, adaptive, 2 workers (mcvar render)": dict(sampler="sobol", adaptive=True, workers=2),
+    "sobol, adaptive, rr_depth=5": dict(sampler="sobol", adaptive=True, rr_depth=5),
+    "sobol, adaptive, rr_depth=10": dict(sampler="sobol", adaptive=True, rr_depth=10),
+    "sobol, adaptive, rr_depth=5, 2 workers": dict(sampler="sobol", adaptive=True, rr_depth=5, workers=2),
+    "sobol, adaptive, rr_depth=10, 2 workers": dict(sampler="sobol", adaptive=True, rr_depth=10, workers=2),
+    "multi_jittered, adaptive": dict(sampler="multi_jittered", adaptive=True),
+    "halton, adaptive": dict(sampler="halton", adaptive=True),
 }
 #: The configuration ``mcvar render`` uses by default (see docs/performance.md).
-BEST = "sobol, adaptive (mcvar render)"
+BEST = "sobol, adaptive, 2 workers (mcvar render)"
+
+#: Optional configurations: Mitsuba 3's LLVM variant on the same scene
+#: (benchmarks/mitsuba_llvm_cornell.py), name -> its sampler plugin. Skipped
+#: when Mitsuba or a libLLVM it can use is missing (``--libllvm`` sets
+#: ``DRJIT_LIBLLVM_PATH``; drjit 1.5 needs LLVM >= 16 on x86: 14 and 15
+#: fail with 'Cannot select ... fminimum').
+MITSUBA = {
+    "Mitsuba 3 LLVM, multijitter, 2 threads": "multijitter",
+    "Mitsuba 3 LLVM, independent, 2 threads": "independent",
+}
+_MITSUBA_SCRIPT = Path(__file__).resolve().with_name("mitsuba_llvm_cornell.py")
+
+
+def run_mitsuba(sampler, spp, res, seed, libllvm=None):
+    """``(image, seconds)`` of one Mitsuba LLVM render, timed inside its own process
+    after a warm-up; ``None`` if Mitsuba's LLVM variant does not run here."""
+    env = dict(os.environ, PYTHONPATH=str(_MITSUBA_SCRIPT.parents[1]))
+    if libllvm:
+        env["DRJIT_LIBLLVM_PATH"] = libllvm
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "mitsuba.npz"
+        p = subprocess.run([sys.executable, str(_MITSUBA_SCRIPT), str(out), "--spp", str(spp), "--res", str(res),
+                            "--runs", "1", "--seed", str(seed), "--sampler", sampler],
+                           env=env, capture_output=True, text=True)
+        if p.returncode != 0 or not out.is_file():
+            return None
+        with np.load(out) as d:
+            return d["images"][0], float(d["seconds"][0])
 
 
 def run(scene, **kw):
@@ -92,6 +134,9 @@ def main(argv=None):
     ap.add_argument("--frontier", action="store_true",
                     help="MSE against seconds at several spp per configuration; saves docs/performance-frontier.png")
     ap.add_argument("--spps", default="32,64,128,256,512", help="spp levels of --frontier")
+    ap.add_argument("--no-mitsuba", action="store_true", help="skip the Mitsuba LLVM configurations")
+    ap.add_argument("--libllvm", default=os.environ.get("DRJIT_LIBLLVM_PATH"),
+                    help="path of a libLLVM (>= 16) for Mitsuba's LLVM variant")
     args = ap.parse_args(argv)
     runs = 2 if args.quick else args.runs
     ref_spp = 2048 if args.quick else args.ref_spp
@@ -106,13 +151,29 @@ def main(argv=None):
           f"reference {ref_spp} spp, its own variance {floor:.2e} is subtracted from every MSE")
     for kw in configs.values():                       # warm-up (pools, caches)
         run(scene, spp=16, res=16, rng=0, **kw)
+    mitsuba = {}
+    if not args.no_mitsuba and not args.frontier:
+        for name, sampler in MITSUBA.items():
+            if any(s in name for s in args.only.split(";")) or not args.only:
+                if run_mitsuba(sampler, 16, 16, 0, args.libllvm) is None:
+                    print(f"{name}: skipped (Mitsuba's llvm_ad_rgb variant did not run; see --libllvm)")
+                else:
+                    mitsuba[name] = sampler
     if args.frontier:
         frontier(scene, configs, ref, floor, args.res, runs, tuple(int(x) for x in args.spps.split(",")))
         return
-    secs = {k: [] for k in configs}
-    errs = {k: [] for k in configs}
-    spent = {k: [] for k in configs}
+    names = list(configs) + list(mitsuba)
+    secs = {k: [] for k in names}
+    errs = {k: [] for k in names}
+    spent = {k: [] for k in names}
     for rep in range(runs):
+        for name, sampler in mitsuba.items():        # its own process, timed inside it
+            got = run_mitsuba(sampler, args.spp, args.res, 1000 + rep, args.libllvm)
+            if got is None:
+                raise RuntimeError(f"{name} failed after its warm-up succeeded")
+            secs[name].append(got[1])
+            spent[name].append(args.spp)
+            errs[name].append(float(np.mean((got[0] - ref) ** 2)) - floor)
         for name, kw in configs.items():
             t0 = time.perf_counter()
             r = run(scene, spp=args.spp, res=args.res, rng=1000 + rep, **kw)
@@ -124,7 +185,7 @@ def main(argv=None):
     load1 = os.getloadavg()
     print(f"\n{'configuration':<40} {'seconds':>8} {'paths/s':>9} {'MSE':>9} {'MSE x time':>11}")
     rows = {}
-    for name in configs:
+    for name in names:
         t = float(np.median(secs[name]))
         e = float(np.mean(errs[name]))
         se = float(np.std(errs[name], ddof=1) / np.sqrt(runs)) if runs > 1 else float("nan")
@@ -133,12 +194,16 @@ def main(argv=None):
         print(f"{name:<40} {t:>8.3f} {paths / t / 1e6:>7.2f} M {e:>9.2e} "
               f"{e * t:>11.2e}   (MSE +- {se:.1e}; seconds {min(secs[name]):.3f}-{max(secs[name]):.3f})")
     print(f"load average at the end {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; median of {runs} interleaved runs")
-    best = min(rows, key=rows.get)
+    ours = {k: rows[k] for k in configs}
+    best = min(ours, key=ours.get)
     base = next(iter(CONFIGS))
     if base in rows:
         print(f"\nbest: {best}: MSE x time {rows[best]:.2e} s; {rows[base] / rows[best]:.2f}x the previous "
               f"default's ({rows[base]:.2e} s, same run); LLVM renderer {LLVM_BEST:.1e} s (quiet machine, issue 14): "
               f"ratio {LLVM_BEST / rows[best]:.2f}")
+    for name in mitsuba:
+        print(f"{name} in the same run: MSE x time {rows[name]:.2e} s; mcvar's best is "
+              f"{rows[name] / rows[best]:.2f}x as efficient (> 1: mcvar ahead)")
 
 
 def frontier(scene, configs, ref, floor, res, runs, spps):

@@ -145,8 +145,10 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
 
 
 #: Paths per pilot batch: smaller than the second stage's so that the pilot,
-#: a few spp over the whole image, still spreads over two or more workers.
-PILOT_PATHS_PER_BATCH = PATHS_PER_BATCH // 4
+#: a few spp over the whole image, still spreads over two or more workers
+#: (a process pool hands its first ``workers`` + 1 batches out at once, beyond
+#: the parent's reach: 8 batches of the 64 x 64, 8-spp pilot, not 2).
+PILOT_PATHS_PER_BATCH = PATHS_PER_BATCH // 16
 
 
 def _jobs(levels_of_pixels, paths_per_batch=PATHS_PER_BATCH):
@@ -204,8 +206,11 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         :data:`~mcvar.integrators.RR_START_DEPTH`); default
         :data:`ADAPTIVE_RR_DEPTH`.
     workers : int
-        Local processes (``fork``) for the batches; ignored when
-        ``executor`` is given.
+        Processes for the batches: the calling process and ``workers - 1``
+        local ones (``fork``); the caller takes batches from the end of the
+        queue while the pool takes them from the front, so two workers on a
+        machine whose second core is busy cost little more than one.
+        Ignored when ``executor`` is given (the caller then only waits).
     executor : concurrent.futures.Executor-like, optional
         Runs the batches (``submit``); the image does not depend on it.
     progress : bool or callable
@@ -281,8 +286,9 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     if executor is None and workers > 1:
         import multiprocessing
 
+        # the parent is one of the ``workers``: it renders batches too (see run)
         ctx = multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods() else None
-        executor = own = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        executor = own = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx)
     common = (token, scene, integrator, sampler, size, max_depth, heuristic, precision, light_sampling,
               rr_depth)
     total_paths = n_pix * spp
@@ -296,28 +302,48 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
 
     def run(batches, stream, sink):
         """Run (pixels, n) batches with seeds spawned from ``stream``; ``sink(pixels, result)``
-        for each, in batch order (a Ctrl-C leaves the finished ones sunk)."""
+        for each as it finishes (a Ctrl-C leaves the finished ones sunk). A batch's
+        result depends only on its index's seed, so neither the order nor who ran it
+        changes the image."""
         nonlocal done_paths
         seeds = stream.spawn(len(batches))
         futures = []
-        if executor is None:
-            results = (_run_level(*common, px, n, s) for (px, n), s in zip(batches, seeds))
-        else:
+
+        def finish(i, r):
+            nonlocal done_paths
+            px, n = batches[i]
+            sink(px, r)
+            done_paths += px.shape[0] * n
+            if bar is not None:
+                bar.update(px.shape[0] * n)
+            if callback is not None:
+                callback(done_paths, total_paths)
+
+        try:
+            if executor is None:
+                for i, ((px, n), seed) in enumerate(zip(batches, seeds)):
+                    finish(i, _run_level(*common, px, n, seed))
+                return
             # largest batches first (the image does not depend on the order: seeds go by index)
             order = sorted(range(len(batches)), key=lambda i: -batches[i][0].shape[0] * batches[i][1])
             futures = [None] * len(batches)
             for i in order:
                 (px, n), seed = batches[i], seeds[i]
                 futures[i] = executor.submit(_run_level, *common, px, n, seed)
-            results = (f.result() for f in futures)
-        try:
-            for (px, n), r in zip(batches, results):
-                sink(px, r)
-                done_paths += px.shape[0] * n
-                if bar is not None:
-                    bar.update(px.shape[0] * n)
-                if callback is not None:
-                    callback(done_paths, total_paths)
+            pending = list(range(len(batches)))
+            if own is not None:
+                # Our own pool has workers - 1 processes; the parent takes batches
+                # from the small end of the queue until it meets the pool's:
+                # a batch it can still cancel has not started anywhere. When
+                # the other core is busy (a shared machine) the parent just does
+                # most of the work itself instead of waiting on a starved worker.
+                for i in reversed(order):
+                    if not futures[i].cancel():
+                        break
+                    finish(i, _run_level(*common, *batches[i], seeds[i]))
+                    pending.remove(i)
+            for i in pending:
+                finish(i, futures[i].result())
         finally:
             for f in futures:             # never leave a render's batches running
                 f.cancel()

@@ -16,6 +16,7 @@ same code.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -67,12 +68,14 @@ def _cmd_render(args) -> int:
         # the most efficient unbiased configuration (docs/performance.md)
         result = render_adaptive(scene, integrator=args.integrator, spp=args.spp, res=args.res,
                                  sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                                 heuristic=args.heuristic, workers=args.workers, progress=not args.quiet)
+                                 heuristic=args.heuristic, workers=_adaptive_workers(args.workers),
+                                 progress=not args.quiet)
     else:
         result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
                         sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
                         heuristic=args.heuristic, batch_spp=args.batch_spp,
-                        workers=args.workers, progress=not args.quiet, **options)
+                        workers=1 if args.workers is None else args.workers, progress=not args.quiet,
+                        **options)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
@@ -83,6 +86,13 @@ def _cmd_render(args) -> int:
         written = write_strategies(args.strategies, strategies_from_extra(result.extra, result.res), result.res)
         print(f"wrote {len(written) - 1} strategy images (s{{s}}_t{{t}}.npy) and {written[-1]}")
     return 0
+
+
+def _adaptive_workers(workers):
+    """Processes of an adaptive render: ``workers``, or by default both cores (the
+    caller and one pool process; docs/performance.md: 1.6x on a 2-core machine
+    whose second core is free, about 5% slower than one when it is busy)."""
+    return min(2, os.cpu_count() or 1) if workers is None else workers
 
 
 def _adaptive_default(args) -> bool:
@@ -127,7 +137,7 @@ def _cmd_demo(args) -> int:
 
         # the Cornell box once more, with the most efficient unbiased configuration
         r = render_adaptive(load_scene("cornell"), spp=256, res=64, sampler="sobol", rng=1,
-                            progress=not args.quiet)
+                            workers=_adaptive_workers(None), progress=not args.quiet)
         Path(args.out).mkdir(parents=True, exist_ok=True)
         paths["best"] = write_image(Path(args.out) / "cornell-best.png", r.image)
         print(f"cornell-best.png: 64x64, adaptive Sobol, {r.spp} spp on average in {r.seconds:.2f} s")
@@ -185,7 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
     p.add_argument("--heuristic", default="power", help="MIS heuristic: power or balance")
     p.add_argument("--batch-spp", type=int, default=None, help="spp per batch (bounds memory)")
-    p.add_argument("--workers", type=int, default=1, help="processes to spread spp batches over")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes to spread batches over (default: 2 for adaptive renders, the "
+                        "caller and one more; 1 with --uniform, the previous behaviour)")
     p.add_argument("--strategies", type=Path, default=None, metavar="DIR",
                    help="with --integrator bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
                         "to DIR (s{s}_t{t}.npy, linear) and their grid (strategies.png)")

@@ -86,6 +86,33 @@ def test_same_seed_same_image_any_workers(cornell):
     assert not np.array_equal(a.image, c.image)
 
 
+def test_two_workers_split_batches_between_the_parent_and_the_pool(cornell, monkeypatch):
+    """With ``workers=2`` the caller renders batches too (taken from the queue's end)
+    and the pool the others; the image is still that of ``workers=1``."""
+    import os
+
+    import mcvar.adaptive as adaptive
+
+    monkeypatch.setattr(adaptive, "PILOT_PATHS_PER_BATCH", 4)       # 64 pilot batches of one pixel (4 spp)
+    parent = os.getpid()
+    ran = []
+    inner = adaptive.pixel_samples          # called once per batch, by whoever runs it
+
+    def counted(*a, **k):
+        if os.getpid() == parent:       # forked pool processes count in their own memory
+            ran.append(1)
+        return inner(*a, **k)
+
+    monkeypatch.setattr(adaptive, "pixel_samples", counted)
+    one = render_adaptive(cornell, spp=64, res=8, sampler="sobol", rng=SEED, workers=1)
+    n_batches = len(ran)
+    ran.clear()
+    two = render_adaptive(cornell, spp=64, res=8, sampler="sobol", rng=SEED, workers=2)
+    assert np.array_equal(one.image, two.image)
+    assert n_batches > 64
+    assert 1 <= len(ran) < n_batches        # the caller worked, and not alone
+
+
 @pytest.mark.parametrize("kw, match", [
     (dict(spp=0), "spp"),
     (dict(integrator="albedo"), "integrator"),

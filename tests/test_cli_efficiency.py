@@ -41,3 +41,22 @@ def test_demo_adds_the_best_configuration_image(tmp_path, monkeypatch, capsys):
     assert main(["demo", "--out", str(tmp_path / "b"), "--quiet"]) == 0
     assert (tmp_path / "b" / "cornell-best.png").stat().st_size > 0
     assert "adaptive Sobol" in capsys.readouterr().out
+
+
+def test_render_default_spreads_adaptive_renders_over_both_cores(tmp_path, monkeypatch, capsys):
+    """Adaptive renders default to two processes (the caller and one more;
+    docs/performance.md), ``--workers`` overrides it, ``--uniform`` keeps one."""
+    import os
+
+    import mcvar.adaptive
+    import mcvar.integrators
+
+    seen = []
+    adaptive, uniform = mcvar.adaptive.render_adaptive, mcvar.integrators.render
+    monkeypatch.setattr(mcvar.adaptive, "render_adaptive", lambda *a, **k: seen.append(k["workers"]) or adaptive(*a, **k))
+    monkeypatch.setattr(mcvar.integrators, "render", lambda *a, **k: seen.append(k["workers"]) or uniform(*a, **k))
+    base = ["render", "cornell", "--res", "4", "--spp", "16", "--quiet", "--out", str(tmp_path / "a.npy")]
+    for extra in ([], ["--workers", "1"], ["--uniform"]):
+        assert main(base + extra) == 0
+    assert seen == [min(2, os.cpu_count() or 1), 1, 1]
+    capsys.readouterr()
