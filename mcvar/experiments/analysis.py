@@ -348,7 +348,9 @@ def block_bias_test(values, ref_value, ref_variance, ref_chunks: int, *, block: 
     ``t_b = (mean_r Y_rb - y_b) / sqrt(s_b^2 / R + v_b)``, with ``s_b^2`` the
     sample variance of ``Y_rb`` over the R replicates and ``v_b`` the
     reference block mean's variance; Welch-Satterthwaite degrees of freedom
-    with ``R - 1`` and ``ref_chunks - 1`` for the two terms. Each ``t_b`` is
+    with ``R - 1`` degrees of freedom for the replicates' term and, for the
+    reference's, Welch-Satterthwaite's over its pixels (each pixel's variance
+    has ``ref_chunks - 1``). Each ``t_b`` is
     mapped to the standard normal deviate of the same two-sided p-value,
     ``z_b^2 = F^{-1}_{chi2(1)}(1 - p_b)``. Under zero bias, with blocks
     independent (a camera tracer's pixels are), the ``z_b`` are independent
@@ -439,7 +441,10 @@ def block_bias_test(values, ref_value, ref_variance, ref_chunks: int, *, block: 
     # rounding floor, as in the mean's test: an exact estimator is not 'biased' by its last bit
     rounding = 64.0 * np.finfo(np.float64).eps * np.maximum(np.abs(y.mean(axis=0)), np.abs(yref))
     se2 = a + vref + rounding ** 2
-    den = a * a / (r - 1) + (vref * vref / (ref_chunks - 1) if ref_chunks > 1 else 0.0)
+    # Welch-Satterthwaite: the reference block variance sums its pixels' variances, each with
+    # ref_chunks - 1 degrees of freedom, so its own are (sum v_p)^2 / sum (v_p^2 / (chunks - 1))
+    # and its term of the denominator is vref^2 / dof_ref = sum_p (v_p / n)^2 / (chunks - 1)
+    den = a * a / (r - 1) + (blocksum(pvar ** 2) / n ** 4 / (ref_chunks - 1) if ref_chunks > 1 else 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         dof = np.where(den > 0, (a + vref) ** 2 / np.where(den > 0, den, 1.0), np.inf)
         t = np.where(se2 > 0, d / np.sqrt(np.where(se2 > 0, se2, 1.0)), np.where(d == 0, 0.0, np.inf))
