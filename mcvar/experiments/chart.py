@@ -186,12 +186,12 @@ KNOBS: dict = {
                       (1, 4, 16), (1, 4, 16, 64)),
 }
 
-#: Settings of ``mcvar chart --quick`` and ``mcvar chart``: resolution, replicates per level,
-#: reference spp per chunk and reference chunks.
 #: Side in pixels of the blocks of the chart's block bias test
-#: (:func:`~mcvar.experiments.analysis.block_bias_test`).
+#: (:func:`~mcvar.experiments.analysis.block_bias_test`; docs/chart.md says why 4).
 BLOCK = 4
 
+#: Settings of ``mcvar chart --quick`` and ``mcvar chart``: resolution, replicates per level,
+#: reference spp per chunk and reference chunks.
 QUICK = dict(res=16, replicates=10, reference_spp=2048, reference_chunks=8)
 DEFAULT = dict(res=32, replicates=12, reference_spp=4096, reference_chunks=8)
 
