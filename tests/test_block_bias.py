@@ -112,6 +112,8 @@ def test_bad_input_is_named():
         block_bias_test(x, ref, var, -1)
     with pytest.raises(ValueError, match="mask must have shape"):
         block_bias_test(x, ref, var, 8, mask=np.ones((4, 4), bool))
+    with pytest.raises(ValueError, match="mask must keep at least one pixel"):
+        block_bias_test(x, ref, var, 8, mask=np.zeros((8, 8), bool))
 
 
 def test_emitter_pixels_are_the_lights_projection():

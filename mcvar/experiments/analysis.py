@@ -420,6 +420,8 @@ def block_bias_test(values, ref_value, ref_variance, ref_chunks: int, *, block: 
     keep = np.ones((h, w), bool) if mask is None else np.asarray(mask, dtype=bool)
     if keep.shape != (h, w):
         raise ValueError(f"mask must have shape {(h, w)}; got {keep.shape}")
+    if not keep.any():
+        raise ValueError("mask must keep at least one pixel (True); it keeps none")
     # per pixel: channel mean, and the (upper bound of the) variance of the reference's channel mean
     px = x.mean(axis=3) * keep
     pref = ref.mean(axis=2) * keep
