@@ -29,7 +29,7 @@ from .targets import Target, integrand_target, lecture_target, load_target, make
 from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target, photo_target
 from .runs import CACHE_VERSION, SerialExecutor, run_seed
 from .reference import Reference, compute_reference
-from .analysis import ConfigMetrics, MethodFits, Verdict
+from .analysis import BlockBias, ConfigMetrics, MethodFits, Verdict, block_bias_test, image_bias_verdict
 from .sweeps import SweepResult, sweep
 from .chart import ChartResult, ChartRow, Knob, measure_chart, register_knob
 
@@ -39,6 +39,9 @@ __all__ = [
     "ConfigMetrics",
     "MethodFits",
     "Verdict",
+    "BlockBias",
+    "block_bias_test",
+    "image_bias_verdict",
     "SweepResult",
     "SerialExecutor",
     "integrand_target",
