@@ -51,7 +51,7 @@ from typing import Callable
 import numpy as np
 
 from .._validation import check_count
-from .targets import Target, _scene
+from .targets import Target, _check_reference_settings, _scene
 from .runs import SerialExecutor
 from .reference import compute_reference
 from .sweeps import sweep
@@ -347,11 +347,7 @@ def chart_target(scene: str = "cornell", *, res: int = 16, reference_spp: int = 
     same for every method (cached with the runs when a sweep has a cache).
     """
     res = check_count(res, "res")
-    reference_spp = check_count(reference_spp, "reference_spp")
-    reference_chunks = check_count(reference_chunks, "reference_chunks")
-    if reference_chunks < 2:
-        raise ValueError(f"reference_chunks must be >= 2 (their spread is the reference's variance); "
-                         f"got {reference_chunks}")
+    reference_spp, reference_chunks = _check_reference_settings(reference_spp, reference_chunks)
     _scene(scene)
     knobs = dict(knobs if knobs is not None else {m: _knob_for(m)[0] for m in chart_methods()})
     # each knob's options at levels 1 and 4 describe it in the cache key

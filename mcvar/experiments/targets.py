@@ -201,6 +201,17 @@ def _scene_reference(scene: str, res: int, integrator: str, spp: int, sampler: s
     return _scene_evaluate(scene, res, integrator, sampler, spp, rng)
 
 
+def _check_reference_settings(reference_spp, reference_chunks) -> tuple[int, int]:
+    """``reference_spp`` and ``reference_chunks`` checked: counts, and at least two chunks
+    (their spread is the reference's variance)."""
+    reference_spp = check_count(reference_spp, "reference_spp")
+    reference_chunks = check_count(reference_chunks, "reference_chunks")
+    if reference_chunks < 2:
+        raise ValueError(f"reference_chunks must be >= 2 (their spread is the reference's "
+                         f"variance); got {reference_chunks}")
+    return reference_spp, reference_chunks
+
+
 def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, reference_chunks: int = 8,
                  reference_integrator: str = "path") -> Target:
     """A :class:`Target` rendering the scene ``name`` at ``res x res`` pixels.
@@ -214,11 +225,7 @@ def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, referen
     if not isinstance(name, str):
         raise TypeError(f"name must be a scene name string; got {type(name).__name__}")
     res = check_count(res, "res")
-    reference_spp = check_count(reference_spp, "reference_spp")
-    reference_chunks = check_count(reference_chunks, "reference_chunks")
-    if reference_chunks < 2:
-        raise ValueError(f"reference_chunks must be >= 2 (their spread is the reference's "
-                         f"variance); got {reference_chunks}")
+    reference_spp, reference_chunks = _check_reference_settings(reference_spp, reference_chunks)
     parse_method(reference_integrator)
     _scene(name)  # fail early on an unknown scene
     return Target(name=name, evaluate=partial(_scene_evaluate, name, res),

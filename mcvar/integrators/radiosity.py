@@ -68,7 +68,7 @@ from ..bsdf import Lambertian
 from ..geometry import Frame
 from ..scene import Scene
 from ..tracer import Tracer
-from ..warps import square_to_cosine_hemisphere, square_to_uniform_triangle
+from ..warps import _plane_coords, square_to_cosine_hemisphere, square_to_uniform_triangle
 from .film import BatchJob, BatchResult, camera_result
 from .registry import Method, register
 from .stream import camera_rays
@@ -230,16 +230,8 @@ def mesh_patches(scene: Scene, patch_size: float) -> Patches:
 def _barycentrics(scene: Scene, prim, points):
     """``(b1, b2)`` of ``points`` in triangles ``prim`` (least squares in the plane)."""
     tri = scene.triangles[prim]
-    e1 = tri[:, 1] - tri[:, 0]
-    e2 = tri[:, 2] - tri[:, 0]
-    v = points - tri[:, 0]
-    d11 = np.einsum("ij,ij->i", e1, e1)
-    d12 = np.einsum("ij,ij->i", e1, e2)
-    d22 = np.einsum("ij,ij->i", e2, e2)
-    v1 = np.einsum("ij,ij->i", v, e1)
-    v2 = np.einsum("ij,ij->i", v, e2)
-    det = d11 * d22 - d12 * d12
-    return np.stack([(d22 * v1 - d12 * v2) / det, (d11 * v2 - d12 * v1) / det], axis=-1)
+    s, t, _ = _plane_coords(points, tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return np.stack([s, t], axis=-1)
 
 
 # ---------------------------------------------------------------------------
