@@ -41,7 +41,8 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 
 from ._validation import as_rng, check_choice, check_count
-from .integrators import HEURISTICS, LIGHT_SAMPLING, PATHS_PER_BATCH, Render, trace_paths
+from .integrators import HEURISTICS, LIGHT_SAMPLING, PATHS_PER_BATCH, VISIBLE_LIGHTS, Render, VisibleLights, trace_paths
+from .integrators.path import _check_rr_threshold
 from .samplers import SAMPLERS, pixel_samples
 from .scene import Scene
 from .tracer import Tracer
@@ -54,11 +55,16 @@ __all__ = ["render_adaptive", "allocate", "AdaptiveRender"]
 #: by 4% for 13% more time (docs/performance.md): not worth it.
 ADAPTIVE_DIM = 6
 
-#: Russian roulette start of adaptive renders: on the Cornell box, roulette
-#: from 3 segments on (the integrators' default) puts a large share of the
-#: MSE into the indirect light; starting later costs a little more time and
-#: saves more variance (docs/performance.md).
-ADAPTIVE_RR_DEPTH = 7
+#: Russian roulette start of adaptive renders (the integrators' default 3).
+ADAPTIVE_RR_DEPTH = 3
+#: Weight-window lower bound of adaptive renders' Russian roulette
+#: (:func:`mcvar.integrators.state.roulette`; 1 is pbrt's rule). pbrt's rule
+#: from 3 segments on put a large share of a 256-spp Cornell render's MSE
+#: into roulette (a path of throughput 0.04 survives with q = 0.04 and is
+#: weighted 25x); starting it later (7 segments) halved that for +30% time,
+#: the window 0.2 from 3 segments gives a lower MSE for less time
+#: (docs/performance.md).
+ADAPTIVE_RR_THRESHOLD = 0.2
 
 #: Light-transport integrators the adaptive driver can run.
 ADAPTIVE_INTEGRATORS = ("path", "path_bsdf", "direct", "direct_light", "direct_bsdf")
@@ -123,7 +129,7 @@ _TRACERS: dict = {}
 
 
 def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, precision, light_sampling,
-               rr_depth, pixels, n, seed):
+               rr_depth, visible_lights, rr_threshold, pixels, n, seed):
     """Render ``n`` samples of each pixel in ``pixels``: per-pixel (sum, sum of squares), rays."""
     tracer = _TRACERS.get(token)
     if tracer is None:
@@ -139,7 +145,9 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
     o = np.broadcast_to(scene.camera.position, d.shape)
     radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=integrator, max_depth=max_depth,
                                  heuristic=heuristic, rng=rng, tracer=tracer, light_sampling=light_sampling,
-                                 rr_depth=rr_depth)
+                                 rr_depth=rr_depth, visible_lights=visible_lights, rr_threshold=rr_threshold)
+    if visible_lights == "exact":
+        radiance += VisibleLights(scene).image(res)[pixel]
     per = radiance.reshape(m, n, 3)
     return per.sum(axis=1), np.einsum("psc,psc->pc", per, per), rays
 
@@ -166,7 +174,8 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
                     max_spp: int | None = None, exponent: float | None = None, max_depth: int | None = None, heuristic: str = "power",
                     workers: int = 1, executor=None, progress: bool | Callable[[int, int], None] = False,
                     precision: str = "float32", light_sampling: str = "area",
-                    rr_depth: int | None = ADAPTIVE_RR_DEPTH) -> Render:
+                    rr_depth: int | None = ADAPTIVE_RR_DEPTH, visible_lights: str = "exact",
+                    rr_threshold: float = ADAPTIVE_RR_THRESHOLD) -> Render:
     """Render with the same total work as ``spp`` samples per pixel, spent where the pilot saw variance.
 
     Parameters
@@ -241,6 +250,8 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
     heuristic = check_choice(heuristic, "heuristic", tuple(HEURISTICS))
     precision = check_choice(precision, "precision", ("float32", "float64"))
     light_sampling = check_choice(light_sampling, "light_sampling", LIGHT_SAMPLING)
+    visible_lights = check_choice(visible_lights, "visible_lights", VISIBLE_LIGHTS)
+    rr_threshold = _check_rr_threshold(rr_threshold)
     if rr_depth is not None:
         rr_depth = check_count(rr_depth, "rr_depth")
     spp = check_count(spp, "spp")
@@ -290,7 +301,7 @@ def render_adaptive(scene: Scene, *, integrator: str = "path", spp: int = 256, r
         ctx = multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods() else None
         executor = own = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx)
     common = (token, scene, integrator, sampler, size, max_depth, heuristic, precision, light_sampling,
-              rr_depth)
+              rr_depth, visible_lights, rr_threshold)
     total_paths = n_pix * spp
     bar = None
     if progress is True:

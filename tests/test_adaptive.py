@@ -69,13 +69,27 @@ def test_samples_go_to_the_light_edge(cornell):
     """The second stage puts its most samples where uniform path's pixels are
     noisiest, and the adaptive image beats uniform random sampling's MSE
     against a shared higher-spp image by more than their noise."""
-    a = render_adaptive(cornell, spp=64, res=16, sampler="random", rng=SEED)
+    a = render_adaptive(cornell, spp=64, res=16, sampler="random", rng=SEED, visible_lights="sampled")
     counts = a.spp_map
     p = render(cornell, integrator="path", spp=64, res=16, sampler="random", rng=SEED + 1)
     noisy = p.variance.mean(axis=2) > np.quantile(p.variance.mean(axis=2), 0.95)
     assert counts[noisy].mean() > 4 * counts[~noisy].mean()
     # the adaptive estimate's own per-pixel variance of the mean is smaller in total
     assert (a.variance / a.spp).sum() < (p.variance / p.spp).sum()
+
+
+def test_exact_visible_lights_free_the_light_pixels(cornell):
+    """With the light's pixels integrated exactly (the default), the pixels
+    the light covers carry only their ceiling's variance: they are no longer
+    favoured (about the median count, against 8-16x it when sampled), and
+    the samples go to the rest of the image instead."""
+    a = render_adaptive(cornell, spp=64, res=16, sampler="random", rng=SEED)
+    s = render_adaptive(cornell, spp=64, res=16, sampler="random", rng=SEED, visible_lights="sampled")
+    light = a.image.max(axis=2) > 1.0                     # radiance 17 inside, ~0.2 elsewhere
+    assert light.sum() >= 2
+    assert a.spp_map[light].mean() <= 2 * np.median(a.spp_map)
+    assert s.spp_map[light].mean() > 4 * a.spp_map[light].mean()
+    assert a.spp_map[~light].mean() > s.spp_map[~light].mean()
 
 
 def test_same_seed_same_image_any_workers(cornell):

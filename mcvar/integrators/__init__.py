@@ -35,7 +35,7 @@ from __future__ import annotations
 from .registry import KINDS, METHODS, Method, get_method, register
 from .film import BatchJob, BatchResult, Film, Render, camera_result, splat
 from .stream import SAMPLER_DIM, stream_dim
-from .emitters import LIGHT_SAMPLING, Emitters, LightOrigins, pdf_le, sample_le
+from .emitters import LIGHT_SAMPLING, VISIBLE_LIGHTS, Emitters, LightOrigins, VisibleLights, pdf_le, sample_le
 from .state import RR_MAX_DEPTH, RR_START_DEPTH, shadow_rays as _shadow_rays
 from .path import HEURISTICS, KERNELS, trace_camera_paths, trace_paths
 from .aov import aov_method
@@ -56,4 +56,5 @@ __all__ = ["INTEGRATORS", "HEURISTICS", "KERNELS", "KINDS", "METHODS", "Method",
            "BatchJob", "BatchResult", "Film", "Render", "splat", "camera_result", "render", "trace_paths",
            "trace_camera_paths", "WorkerPool", "PATHS_PER_BATCH", "MAX_RENDER_BYTES", "BYTES_PER_PATH",
            "estimate_render_bytes", "SAMPLER_DIM", "stream_dim", "Emitters", "LightOrigins", "sample_le", "pdf_le",
-           "aov_method", "RR_START_DEPTH", "RR_MAX_DEPTH", "LIGHT_SAMPLING"]
+           "aov_method", "RR_START_DEPTH", "RR_MAX_DEPTH", "LIGHT_SAMPLING",
+           "VISIBLE_LIGHTS", "VisibleLights"]

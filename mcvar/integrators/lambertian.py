@@ -50,6 +50,8 @@ def trace_lambertian(tr: Transport, o, d) -> None:
     while state.n and k < tr.limit:
         k += 1
         t, prim = tracer.closest_soa(state.o, state.d)
+        if k == 1 and tr.visible:
+            tr.camera_hits(state, t, prim)
         t = t.astype(dt, copy=False)
         tr.rays += state.n
         if prim.min() < 0:                 # drop the rays that left the scene (no environment)

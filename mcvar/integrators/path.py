@@ -43,7 +43,7 @@ import numpy as np
 from .._validation import as_rng, check_choice, check_count
 from ..estimators import balance_heuristic, power_heuristic
 from ..tracer import Tracer
-from .emitters import Emitters
+from .emitters import VISIBLE_LIGHTS, Emitters, VisibleLights
 from .film import BatchJob, BatchResult, camera_result
 from .lambertian import trace_lambertian
 from .registry import Method, register
@@ -78,7 +78,8 @@ _MODES = {
 
 def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_depth: int | None = None,
                 heuristic: str = "power", rng=None, tracer: Tracer | None = None, kernel: str = "auto",
-                light_sampling: str = "area", rr_depth: int | None = None):
+                light_sampling: str = "area", rr_depth: int | None = None, visible_lights: str = "sampled",
+                rr_threshold: float = 1.0):
     """Radiance carried back along each camera ray: the wavefront core.
 
     Parameters
@@ -110,6 +111,19 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
         Russian roulette starts once a path has this many segments (default
         :data:`~mcvar.integrators.state.RR_START_DEPTH`); unbiased for any
         value, later is more work and less variance.
+    rr_threshold : float in (0, 1]
+        Russian roulette survival ``min(0.95, max(beta) / rr_threshold)``
+        (:func:`~mcvar.integrators.state.roulette`); 1 (default) is pbrt's
+        rule, smaller values a weight window: paths play only once their
+        throughput falls below it, longer paths and less variance.
+    visible_lights : {'sampled', 'exact'}
+        ``exact``: the rays are camera rays, and the emission of the lights
+        :class:`~mcvar.integrators.emitters.VisibleLights` handles, seen
+        directly, is left out (``f - g``): the caller adds
+        ``VisibleLights(scene).image(res)[pixel]`` to each ray's radiance
+        (as :func:`mcvar.integrators.render` and
+        :func:`mcvar.adaptive.render_adaptive` do), a control variate that
+        removes the variance of the light's edge in the image.
 
     Returns
     -------
@@ -151,11 +165,13 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
     check_choice(heuristic, "heuristic", tuple(HEURISTICS))
     check_choice(kernel, "kernel", KERNELS)
     rng = as_rng(rng)
+    check_choice(visible_lights, "visible_lights", VISIBLE_LIGHTS)
+    rr_threshold = _check_rr_threshold(rr_threshold)
     tracer = tracer if tracer is not None else Tracer(scene)
     stream = SampleStream(None if u is None else np.asarray(u, dtype=np.float64), rng, camera=False)
     return _trace(scene, tracer, np.asarray(origins, dtype=np.float64).T,
                   np.asarray(directions, dtype=np.float64).T, stream, integrator, max_depth, heuristic, kernel,
-                  light_sampling, rr_depth)
+                  light_sampling, rr_depth, visible_lights, rr_threshold)
 
 
 def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_depth: int | None = None,
@@ -183,7 +199,7 @@ def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_de
 
 
 def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel, light_sampling="area",
-           rr_depth=None):
+           rr_depth=None, visible_lights="sampled", rr_threshold=1.0):
     """The loops' common entry: rays SoA (3, n)."""
     mode = _MODES[integrator]
     if mode.depth is not None:
@@ -198,7 +214,9 @@ def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel
     limit = RR_MAX_DEPTH if max_depth is None else max_depth
     tr = Transport(scene, tracer, emitters, tables, o.shape[1], nee=mode.nee, bsdf_hits=mode.bsdf_hits,
                    mis=mode.mis, weight_fn=HEURISTICS[heuristic], limit=limit, roulette=max_depth is None,
-                   stream=stream, rr_start=rr_start)
+                   stream=stream, rr_start=rr_start, rr_threshold=rr_threshold)
+    if visible_lights == "exact":
+        tr.visible = VisibleLights(scene)
     if tables.lambertian and kernel != "general":
         trace_lambertian(tr, o, d)
     else:
@@ -217,6 +235,8 @@ def _trace_general(tr: Transport, o, d) -> None:
         n = state.n
         t, prim = tracer.closest_soa(state.o, state.d)
         tr.rays += n
+        if k == 1 and tr.visible:
+            tr.camera_hits(state, t, prim)
         mat = np.take(tables.mat_code, prim)
         # -- rays that left the scene: environment emission
         if tr.emitters.env is not None:
@@ -330,10 +350,24 @@ def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, 
 
 def run_path_batch(name: str, job: BatchJob) -> BatchResult:
     """``run_batch`` of the path-tracing and direct-lighting methods (``partial(run_path_batch, name)``)."""
-    _, o, d, stream = camera_rays(job, soa=True)
+    pixel, o, d, stream = camera_rays(job, soa=True)
+    exact = job.options["visible_lights"]
     radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.max_depth, job.heuristic,
-                            job.options["kernel"], job.options["light_sampling"], job.options["rr_depth"])
+                            job.options["kernel"], job.options["light_sampling"], job.options["rr_depth"],
+                            exact, job.options["rr_threshold"])
+    if exact == "exact":
+        radiance += VisibleLights(job.scene).image(job.res)[pixel]
     return camera_result(job, radiance, rays, name)
+
+
+def _check_rr_threshold(value) -> float:
+    """``rr_threshold`` as a float in (0, 1]; ValueError/TypeError naming it otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"rr_threshold must be a number in (0, 1]; got {type(value).__name__}")
+    value = float(value)
+    if not 0.0 < value <= 1.0:
+        raise ValueError(f"rr_threshold must lie in (0, 1]; got {value}")
+    return value
 
 
 def _check_kernel(scene, options) -> None:
@@ -341,6 +375,8 @@ def _check_kernel(scene, options) -> None:
     Emitters(scene, options["light_sampling"])    # unknown name or a non-rectangular light: ValueError
     if options["rr_depth"] is not None:
         check_count(options["rr_depth"], "rr_depth")
+    check_choice(options["visible_lights"], "visible_lights", VISIBLE_LIGHTS)
+    _check_rr_threshold(options["rr_threshold"])
     if options["kernel"] == "lambertian":
         emitters = Emitters(scene)
         missing = SceneTables(scene, Tracer(scene), emitters).lambertian_missing(emitters)
@@ -362,7 +398,8 @@ _LECTURE = {"path": ("almost", "almost")}
 
 for _name, _mode in _MODES.items():
     register(Method(_name, "camera", partial(run_path_batch, _name), _SUMMARIES[_name],
-                    options={"kernel": "auto", "light_sampling": "area", "rr_depth": None},
+                    options={"kernel": "auto", "light_sampling": "area", "rr_depth": None,
+                             "visible_lights": "sampled", "rr_threshold": 1.0},
                     check_scene=_check_kernel,
                     lecture=_LECTURE.get(_name),
                     fixed_depth=_mode.depth))

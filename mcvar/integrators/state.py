@@ -198,18 +198,24 @@ class Transport:
     stream : SampleStream
     rr_start : int
         Russian roulette from this many segments on (default :data:`RR_START_DEPTH`).
+    rr_threshold : float
+        Roulette survival ``q = min(0.95, max(beta) / rr_threshold)`` (default 1).
     """
 
     def __init__(self, scene, tracer, emitters, tables, n, *, nee, bsdf_hits, mis, weight_fn, limit,
-                 roulette, stream: SampleStream, rr_start: int = RR_START_DEPTH):
+                 roulette, stream: SampleStream, rr_start: int = RR_START_DEPTH, rr_threshold: float = 1.0):
         self.scene, self.tracer, self.emitters, self.tables = scene, tracer, emitters, tables
         self.nee = nee and emitters.n_emitters > 0
         self.bsdf_hits, self.mis, self.weight_fn = bsdf_hits, mis, weight_fn
         self.limit, self.roulette, self.stream = limit, roulette, stream
         self.rr_start = rr_start
+        self.rr_threshold = float(rr_threshold)
         self.eps = float(scene.ray_epsilon)
         self.radiance = np.zeros((3, n))
         self.rays = 0
+        #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
+        #: by camera rays is left to the caller's exact image (None: sampled)
+        self.visible = None
 
     def add(self, rows, value) -> None:
         """``radiance[:, rows] += value`` for distinct ``rows``, one channel at a
@@ -242,9 +248,22 @@ class Transport:
         w = self.weight_fn(np.where(delta, 1.0, prev_pdf), light_pdf())
         return np.where(delta, 1.0, w)
 
+    def camera_hits(self, state: PathState, t, prim) -> None:
+        """First segment, with :attr:`visible` set: subtract ``g`` of the camera
+        rays that cross a handled light behind their first hit (``t`` inf, ``prim``
+        -1 for misses); see :class:`~mcvar.integrators.emitters.VisibleLights`."""
+        if self.visible:
+            g = self.visible.hidden(state.o, state.d, t, prim)
+            rows = np.flatnonzero(g.max(axis=0) > 0.0)
+            if rows.size:
+                self.add(state.idx[rows], -np.take(g, rows, axis=1))
+
     def hit_emission(self, k, state: PathState, p, prim) -> None:
         """Add the emission found by the rays of segment ``k`` at their hits ``p`` (SoA)."""
-        lit = np.flatnonzero(np.take(self.tables.emits, prim))
+        emits = self.tables.emits
+        if k == 1 and self.visible:
+            emits = emits & ~self.visible.prim_exact      # f - g = 0: the caller adds the exact image
+        lit = np.flatnonzero(np.take(emits, prim))
         if not lit.size:
             return
         pl, dl, ol = p[:, lit].T, state.d[:, lit].T, state.o[:, lit].T
@@ -268,12 +287,21 @@ class Transport:
 
 def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
     """Russian roulette after the bounce at vertex ``k``: survive with
-    ``q = min(0.95, max beta)``, ``beta /= q`` (unbiased). Returns the new ``alive`` mask."""
+    ``q = min(0.95, max(beta) / tr.rr_threshold)``, ``beta /= q`` (unbiased).
+    Returns the new ``alive`` mask.
+
+    With the default threshold 1 a path's survival is its throughput (pbrt's
+    rule); a threshold ``w < 1`` is the lower bound of a *weight window*
+    (Booth 1982; Vorba and Krivanek 2016): only paths whose throughput fell
+    below ``w`` play, and a survivor carries ``beta = w``, so that no path
+    is ever weighted up beyond the window (the classic rule gives a path of
+    throughput 0.04 a 25x weight).
+    """
     beta = state.beta
     bmax = beta.max(axis=0)
     alive &= bmax > 0.0
     if tr.roulette and k >= tr.rr_start:
-        q = np.minimum(bmax, 0.95)
+        q = np.minimum(bmax / tr.rr_threshold if tr.rr_threshold != 1.0 else bmax, 0.95)
         u = tr.stream.vertex(k, ROULETTE, 1, state.idx)[0]
         survive = u < q
         beta /= np.where(survive, q, 1.0)
