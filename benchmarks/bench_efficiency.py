@@ -50,25 +50,25 @@ from mcvar.scene import load_scene
 #: quiet machine, from issue 14.
 LLVM_BEST = 3.9e-6
 
-#: name -> render keywords. The first is the previous default.
+#: name -> render keywords. The first is the previous default of ``render``.
 CONFIGS = {
     "sobol, 1 worker (previous default)": dict(sampler="sobol", workers=1),
     "random, 1 worker": dict(sampler="random", workers=1),
-    "sobol, 2 workers, batch_spp=128": dict(sampler="sobol", workers=2, batch_spp=128),
-    "sobol, solid-angle light": dict(sampler="sobol", light_sampling="solid_angle"),
-    "sobol, rr_depth=7": dict(sampler="sobol", rr_depth=7),
-    "sobol, tiles, 2 workers": dict(sampler="sobol", adaptive=True, pilot_spp=0, rr_depth=None, workers=2),
+    "sobol, exact light, 1 worker": dict(sampler="sobol", workers=1, visible_lights="exact"),
+    "sobol, tiles, 2 workers": dict(sampler="sobol", adaptive=True, pilot_spp=0, rr_depth=None, workers=2,
+                                    visible_lights="sampled", rr_threshold=1.0),
     "random, adaptive": dict(sampler="random", adaptive=True),
+    "sobol, adaptive, sampled light, rr 7, 2 workers (previous mcvar render)":
+        dict(sampler="sobol", adaptive=True, workers=2, visible_lights="sampled", rr_threshold=1.0, rr_depth=7),
+    "sobol, adaptive, exact light, rr 7, 2 workers":
+        dict(sampler="sobol", adaptive=True, workers=2, rr_threshold=1.0, rr_depth=7),
+    "sobol, adaptive, exact light, window 0.1, 2 workers": dict(sampler="sobol", adaptive=True, workers=2,
+                                                                rr_threshold=0.1),
     "sobol, adaptive, 1 worker": dict(sampler="sobol", adaptive=True),
     "sobol, adaptive, 2 workers (mcvar render)": dict(sampler="sobol", adaptive=True, workers=2),
-    "sobol, adaptive, rr_depth=5": dict(sampler="sobol", adaptive=True, rr_depth=5),
-    "sobol, adaptive, rr_depth=10": dict(sampler="sobol", adaptive=True, rr_depth=10),
-    "sobol, adaptive, rr_depth=5, 2 workers": dict(sampler="sobol", adaptive=True, rr_depth=5, workers=2),
-    "sobol, adaptive, rr_depth=10, 2 workers": dict(sampler="sobol", adaptive=True, rr_depth=10, workers=2),
-    "multi_jittered, adaptive": dict(sampler="multi_jittered", adaptive=True),
-    "halton, adaptive": dict(sampler="halton", adaptive=True),
 }
-#: The configuration ``mcvar render`` uses by default (see docs/performance.md).
+#: The configuration ``mcvar render`` uses by default (see docs/performance.md):
+#: adaptive Sobol', the light's pixels exact, roulette with the window 0.2.
 BEST = "sobol, adaptive, 2 workers (mcvar render)"
 
 #: Optional configurations: Mitsuba 3's LLVM variant on the same scene
@@ -78,6 +78,9 @@ BEST = "sobol, adaptive, 2 workers (mcvar render)"
 #: fail with 'Cannot select ... fminimum').
 MITSUBA = {
     "Mitsuba 3 LLVM, multijitter, 2 threads": "multijitter",
+    "Mitsuba 3 LLVM, ldsampler, 2 threads": "ldsampler",
+    "Mitsuba 3 LLVM, orthogonal, 2 threads": "orthogonal",
+    "Mitsuba 3 LLVM, stratified, 2 threads": "stratified",
     "Mitsuba 3 LLVM, independent, 2 threads": "independent",
 }
 _MITSUBA_SCRIPT = Path(__file__).resolve().with_name("mitsuba_llvm_cornell.py")
