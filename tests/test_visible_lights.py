@@ -183,6 +183,8 @@ def test_trace_paths_bad_visible_lights(cornell):
         trace_paths(cornell, o, d, None, rng=SEED, visible_lights="analytic")
     with pytest.raises(ValueError, match="visible_lights"):
         render(cornell, spp=1, res=4, rng=SEED, visible_lights="yes")
+    with pytest.raises(ValueError, match="camera rays"):
+        trace_paths(cornell, o + 1.0, d, None, rng=SEED, visible_lights="exact")
 
 
 # -- weight-window roulette ---------------------------------------------------

@@ -393,27 +393,41 @@ class VisibleLights:
     def hidden(self, o, d, t_hit, prim) -> np.ndarray:
         """``g`` of camera rays whose first hit is *not* the light they cross: (3, n).
 
-        ``o, d`` (3, n) rays, ``t_hit`` (n,) distance to their first hit
-        (inf: a miss), ``prim`` (n,) the primitive hit (-1: none). The radiance
-        of every handled light a ray crosses through its emitting face beyond
-        ``t_hit``; rays that hit a light's own triangles first are left out
-        for that light (their ``f - g`` is 0).
+        ``o, d`` (3, n) camera rays (origins at the camera's position),
+        ``t_hit`` (n,) distance to their first hit (inf: a miss), ``prim`` (n,)
+        the primitive hit (-1: none). The radiance of every handled light a
+        ray crosses through its emitting face beyond ``t_hit``; rays that hit
+        a light's own triangles first are left out for that light (their
+        ``f - g`` is 0). Only rays inside the cone from the camera around each
+        light (one dot product per ray) are tested further.
         """
         n = t_hit.shape[0]
         out = np.zeros((3, n))
-        o = np.asarray(o, dtype=np.float64)
-        d = np.asarray(d, dtype=np.float64)
-        hit_light = np.where(prim >= 0, np.take(self.scene.prim_light, np.maximum(prim, 0)), -1)
+        cam = self.scene.camera.position
         for k, lo, nrm, g1, g2, le in self._planes:
-            denom = nrm @ d
+            e1, e2 = self.scene.light_edge1[k], self.scene.light_edge2[k]
+            corners = np.stack([lo, lo + e1, lo + e1 + e2, lo + e2]) - cam
+            axis = corners.sum(axis=0)
+            axis /= np.linalg.norm(axis)
+            cos_min = (corners @ axis / np.linalg.norm(corners, axis=1)).min()
+            near = axis[0] * d[0]
+            near += axis[1] * d[1]
+            near += axis[2] * d[2]
+            sel = np.flatnonzero(near >= cos_min - 1e-6)      # float32 directions: a margin
+            if sel.size == 0:
+                continue
+            ds = np.asarray(d[:, sel], dtype=np.float64)
+            os_ = np.asarray(o[:, sel], dtype=np.float64)
+            denom = nrm @ ds
             with np.errstate(divide="ignore", invalid="ignore"):
-                t = (nrm @ lo - nrm @ o) / denom
-            x = o + t * d - lo[:, None]
+                t = (nrm @ lo - nrm @ os_) / denom
+            x = os_ + t * ds - lo[:, None]
             a, b = g1 @ x, g2 @ x
-            crossed = (denom < 0.0) & (t > t_hit) & (a >= 0.0) & (a <= 1.0) & (b >= 0.0) & (b <= 1.0)
-            crossed &= hit_light != k
+            crossed = (denom < 0.0) & (t > t_hit[sel]) & (a >= 0.0) & (a <= 1.0) & (b >= 0.0) & (b <= 1.0)
+            pr = prim[sel]
+            crossed &= np.where(pr >= 0, np.take(self.scene.prim_light, np.maximum(pr, 0)), -1) != k
             if np.any(crossed):
-                out[:, crossed] += le[:, None]
+                out[:, sel[crossed]] += le[:, None]
         return out
 
 

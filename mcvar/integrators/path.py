@@ -167,6 +167,8 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
     rng = as_rng(rng)
     check_choice(visible_lights, "visible_lights", VISIBLE_LIGHTS)
     rr_threshold = _check_rr_threshold(rr_threshold)
+    if visible_lights == "exact" and not np.all(np.asarray(origins) == scene.camera.position):
+        raise ValueError("visible_lights='exact' needs camera rays: every origin at scene.camera.position")
     tracer = tracer if tracer is not None else Tracer(scene)
     stream = SampleStream(None if u is None else np.asarray(u, dtype=np.float64), rng, camera=False)
     return _trace(scene, tracer, np.asarray(origins, dtype=np.float64).T,
