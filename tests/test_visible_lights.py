@@ -207,3 +207,24 @@ def test_weight_window_roulette_is_unbiased(cornell):
 def test_bad_rr_threshold(cornell, bad, err):
     with pytest.raises(err, match="rr_threshold"):
         render(cornell, spp=1, res=4, rng=SEED, rr_threshold=bad)
+
+
+# -- the Lambertian kernel's float32 sample stream ----------------------------
+
+def test_float32_stream_is_u_rounded_then_rng_in_float32():
+    """The float32 columns are ``u``'s values rounded (so a path stays a pure
+    function of its row of ``u``), and dimensions beyond ``u`` come from the
+    rng in float32, inside [0, 1)."""
+    from mcvar.integrators.stream import SampleStream
+    rng = np.random.default_rng(SEED)
+    u = rng.random((1000, 6))
+    u[0, 0] = np.nextafter(1.0, 0.0)                     # rounds to 1.0 in float32: still allowed
+    s = SampleStream(u, np.random.default_rng(1), camera=False)
+    idx = np.arange(0, 1000, 3)
+    got = s.columns(0, 6, idx, np.float32)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, u[idx].T.astype(np.float32))
+    extra = s.columns(4, 6, idx, np.float32)             # 2 columns of u, then 4 from the rng
+    assert extra.dtype == np.float32
+    np.testing.assert_array_equal(extra[:2], u[idx, 4:6].T.astype(np.float32))
+    assert np.all((extra[2:] >= 0.0) & (extra[2:] < 1.0)) and np.unique(extra[2:]).size > 0.99 * extra[2:].size

@@ -173,12 +173,13 @@ class Emitters:
             # o + u0 e1 + u1 e2 written out: as a (3, 3) @ (3, m) product it
             # is a dgemm that OpenBLAS threads, which on a busy machine cost
             # 12 ms per call instead of 0.1 ms (half of a 256-spp render)
-            a = self.affine[0]
+            # in the samples' precision (float32 in the Lambertian kernel)
+            a = self.affine[0].astype(np.result_type(u.dtype, p.dtype), copy=False)
             x = a[:, 1:2] * u[0]
             x += a[:, 2:3] * u[1]
             x += a[:, 0:1]
             n_l = self.normal_soa[:, :1]
-            pa = self.pdf_area[0]
+            pa = float(self.pdf_area[0])
             le = np.broadcast_to(self.radiance_soa[:, :1], (3, m))
         else:
             uh = np.empty((3, m))
@@ -192,9 +193,9 @@ class Emitters:
         d2 = _dot(x, x)
         r = np.sqrt(d2)
         w = x
-        w /= np.maximum(r, 1e-300)
+        w /= np.maximum(r, np.finfo(r.dtype).tiny)
         if li is None:
-            n = n_l[:, 0]
+            n = [float(c) for c in n_l[:, 0]]            # Python floats keep w's precision
             cos_l = w[0] * -n[0]
             cos_l -= w[1] * n[1]
             cos_l -= w[2] * n[2]

@@ -74,7 +74,7 @@ def trace_lambertian(tr: Transport, o, d) -> None:
             _next_event(tr, lt, state, k, p, fn, sgn, prim)
         if k + 1 > tr.limit or (k + 1 == tr.limit and not tr.bsdf_hits):
             break
-        ub = stream.vertex(k, BSDF, 2, state.idx)
+        ub = stream.vertex(k, BSDF, 2, state.idx, dt)
         x, y, z = _square_to_cosine_hemisphere_unchecked(ub[0], ub[1], np.float32)
         pdf = y * (1.0 / np.pi)
         ok = y > 0.0
@@ -99,7 +99,7 @@ def _next_event(tr: Transport, lt: _Tables, state: PathState, k, p, fn, sgn, pri
     """NEE: ``beta (albedo / pi) Le cos_i w_light / p_light`` over unoccluded
     samples, with ``p_bsdf = cos_i / pi``."""
     idx = state.idx
-    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, tr.stream.vertex(k, LIGHT, 2, idx), None)
+    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, tr.stream.vertex(k, LIGHT, 2, idx, p.dtype), None)
     cos_i = dot(w, fn)
     cos_i *= sgn                            # local wi.y in the flipped frame
     ok = cos_i > 0.0

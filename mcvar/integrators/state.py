@@ -302,7 +302,7 @@ def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
     alive &= bmax > 0.0
     if tr.roulette and k >= tr.rr_start:
         q = np.minimum(bmax / tr.rr_threshold if tr.rr_threshold != 1.0 else bmax, 0.95)
-        u = tr.stream.vertex(k, ROULETTE, 1, state.idx)[0]
+        u = tr.stream.vertex(k, ROULETTE, 1, state.idx, state.data.dtype)[0]
         survive = u < q
         beta /= np.where(survive, q, 1.0)
         alive &= survive

@@ -73,6 +73,7 @@ class SampleStream:
 
     def __init__(self, u, rng, *, camera: bool = True):
         self.rng = rng
+        self._uT32 = None
         if u is None:
             self.uT = None
             self.width = 0
@@ -82,22 +83,36 @@ class SampleStream:
             self.width = u.shape[1]
         self.base = 0 if camera else -CAMERA_DIMS
 
-    def columns(self, first: int, count: int, idx) -> np.ndarray:
-        """Dimensions ``first .. first + count - 1`` of paths ``idx``: shape (count, m)."""
+    def _table(self, dtype):
+        """``u``'s columns (D, n) in ``dtype`` (a float32 copy is made once)."""
+        if dtype == np.float64:
+            return self.uT
+        if self._uT32 is None:
+            self._uT32 = self.uT.astype(np.float32)
+        return self._uT32
+
+    def columns(self, first: int, count: int, idx, dtype=np.float64) -> np.ndarray:
+        """Dimensions ``first .. first + count - 1`` of paths ``idx``: shape (count, m).
+
+        ``dtype=np.float32`` (the Lambertian kernel, whose path state is
+        float32): ``u``'s columns rounded to float32 (values within 2^-25 of 1
+        become 1.0, which every warp here accepts) and draws from ``rng`` in
+        float32 (in [0, 1)); a path is still a pure function of its row of ``u``.
+        """
         m = np.shape(idx)[0]
         a = first + self.base
         have = max(0, min(count, self.width - a)) if a >= 0 else 0
         if have == count:
-            return np.take(self.uT[a:a + count], idx, axis=1)
-        out = np.empty((count, m))
+            return np.take(self._table(dtype)[a:a + count], idx, axis=1)
+        out = np.empty((count, m), dtype)
         if have:
-            out[:have] = np.take(self.uT[a:a + have], idx, axis=1)
-        out[have:] = self.rng.random((count - have, m))
+            out[:have] = np.take(self._table(dtype)[a:a + have], idx, axis=1)
+        out[have:] = self.rng.random((count - have, m), dtype=dtype)
         return out
 
-    def vertex(self, k: int, offset: int, count: int, idx) -> np.ndarray:
+    def vertex(self, k: int, offset: int, count: int, idx, dtype=np.float64) -> np.ndarray:
         """``count`` dimensions at ``offset`` (:data:`LIGHT` ...) of vertex ``k`` of paths ``idx``."""
-        return self.columns(CAMERA_DIMS + VERTEX_DIMS * (k - 1) + offset, count, idx)
+        return self.columns(CAMERA_DIMS + VERTEX_DIMS * (k - 1) + offset, count, idx, dtype)
 
 
 def sample_slices(sampler: str, n_pix: int, spp: int, sizes, dim: int, rng):
