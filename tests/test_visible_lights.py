@@ -219,7 +219,7 @@ def test_float32_stream_is_u_rounded_then_rng_in_float32():
     rng = np.random.default_rng(SEED)
     u = rng.random((1000, 6))
     u[0, 0] = np.nextafter(1.0, 0.0)                     # rounds to 1.0 in float32: still allowed
-    s = SampleStream(u, np.random.default_rng(1), camera=False)
+    s = SampleStream(u, np.random.default_rng(1), camera=True)
     idx = np.arange(0, 1000, 3)
     got = s.columns(0, 6, idx, np.float32)
     assert got.dtype == np.float32
