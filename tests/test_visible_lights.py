@@ -228,3 +228,61 @@ def test_float32_stream_is_u_rounded_then_rng_in_float32():
     assert extra.dtype == np.float32
     np.testing.assert_array_equal(extra[:2], u[idx, 4:6].T.astype(np.float32))
     assert np.all((extra[2:] >= 0.0) & (extra[2:] < 1.0)) and np.unique(extra[2:]).size > 0.99 * extra[2:].size
+
+
+# -- the Lambertian kernel's written-out MIS ----------------------------------
+
+@pytest.mark.parametrize("heuristic", ["power", "balance"])
+def test_lambertian_light_hits_weigh_like_the_general_loop(cornell, heuristic):
+    """Rays from the floor that hit the light after a cosine-sampled bounce:
+    the Lambertian kernel's written-out MIS weight (``_hit_light``) adds
+    exactly what the general ``Transport.hit_emission`` adds (float32 state:
+    to 1e-5 relative). A wrong light density (e.g. ``cos_l`` multiplied
+    instead of divided) fails here."""
+    from mcvar.integrators import HEURISTICS
+    from mcvar.integrators.emitters import Emitters
+    from mcvar.integrators.lambertian import _hit_light, _Tables
+    from mcvar.integrators.state import PathState, SceneTables, Transport
+    from mcvar.integrators.stream import SampleStream
+    from mcvar.tracer import Tracer
+    rng = np.random.default_rng(SEED)
+    n = 400
+    o = np.stack([rng.uniform(60, 500, n), np.full(n, 1e-3), rng.uniform(60, 500, n)])
+    u = rng.random((2, n))
+    target = (cornell.light_origin[0][:, None] + u[0] * cornell.light_edge1[0][:, None]
+              + u[1] * cornell.light_edge2[0][:, None])
+    d = target - o
+    d /= np.linalg.norm(d, axis=0)
+    tracer = Tracer(cornell)
+    emitters = Emitters(cornell)
+    tables = SceneTables(cornell, tracer, emitters)
+    state = PathState(o, d, dtype=np.float32)
+    state.prev_pdf[...] = d[1] / np.pi                    # the cosine density of the bounce that made them
+    state.beta[...] = rng.uniform(0.2, 1.0, (3, n))
+    t, prim = tracer.closest_soa(state.o, state.d)
+    hits = np.take(tables.emits, prim)
+    assert hits.mean() > 0.3                              # the rest hit the blocks
+    p = state.d * t.astype(np.float32) + state.o
+
+    def transport():
+        return Transport(cornell, tracer, emitters, tables, n, nee=True, bsdf_hits=True, mis=True,
+                         weight_fn=HEURISTICS[heuristic], limit=1024, roulette=True,
+                         stream=SampleStream(None, rng, camera=False))
+    general, kernel = transport(), transport()
+    general.hit_emission(2, state, p, prim)
+    _hit_light(kernel, _Tables(kernel), state, t.astype(np.float32), prim)
+    assert np.count_nonzero(general.radiance[0]) == hits.sum()
+    np.testing.assert_allclose(kernel.radiance, general.radiance, rtol=1e-5, atol=0)
+
+
+@pytest.mark.parametrize("heuristic", ["power", "balance"])
+def test_written_out_mis_weight_is_the_heuristic(heuristic):
+    from mcvar.integrators import HEURISTICS
+    from mcvar.integrators.lambertian import _mis_weight
+
+    class T:
+        mis_beta = 2.0 if heuristic == "power" else 1.0
+    rng = np.random.default_rng(SEED)
+    a, b = rng.lognormal(0, 3, 1000), rng.lognormal(0, 3, 1000)
+    np.testing.assert_allclose(_mis_weight(T, a, b), HEURISTICS[heuristic](a, b), rtol=1e-12)
+    np.testing.assert_allclose(_mis_weight(T, a, b) + _mis_weight(T, b, a), 1.0, rtol=1e-12)

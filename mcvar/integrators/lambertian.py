@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimators import balance_heuristic, power_heuristic
 from ..warps import _square_to_cosine_hemisphere_unchecked
 from .state import PathState, Transport, dot, roulette, shadow_rays
 from .stream import BSDF, LIGHT
@@ -37,6 +38,15 @@ class _Tables:
         le = tr.emitters.radiance_soa[:, :1]
         self.f_le = np.ascontiguousarray(self.albedo / np.pi * le)          # NEE's f Le per triangle
         self.black = ~np.any(self.albedo > 0.0, axis=0)
+        em = tr.emitters
+        self.emits = tr.tables.emits                 # the light's triangles (no other emitter here)
+        self.le = em.radiance_soa[:, 0].copy()
+        self.n_l = [float(c) for c in em.normal_soa[:, 0]]
+        self.pdf_area = float(em.pdf_area[0])
+        #: exponent of the MIS heuristic (power 2, balance 1), written out below
+        self.mis_beta = 2.0 if tr.weight_fn is power_heuristic else 1.0
+        if tr.weight_fn not in (power_heuristic, balance_heuristic):
+            raise ValueError("the Lambertian kernel writes out the power and balance heuristics only")
 
 
 def trace_lambertian(tr: Transport, o, d) -> None:
@@ -63,7 +73,10 @@ def trace_lambertian(tr: Transport, o, d) -> None:
         m = state.n
         p = state.d * t
         p += state.o
-        tr.hit_emission(k, state, p, prim)
+        if k == 1:
+            tr.hit_emission(k, state, p, prim)
+        else:
+            _hit_light(tr, lt, state, t, prim)
         if k >= tr.limit:
             break
         frame = np.take(frame9, prim, axis=1)
@@ -111,7 +124,7 @@ def _next_event(tr: Transport, lt: _Tables, state: PathState, k, p, fn, sgn, pri
     cg, plg, pg = np.take(cos_i, go), np.take(pdf_l, go), np.take(prim, go)
     scale = cg / plg
     if tr.mis:
-        scale *= tr.weight_fn(plg, cg * (1.0 / np.pi))
+        scale *= _mis_weight(lt, plg, cg * (1.0 / np.pi))
     contrib = np.take(state.beta, go, 1)
     contrib *= np.take(lt.f_le, pg, 1)
     contrib *= scale
@@ -123,3 +136,44 @@ def _next_event(tr: Transport, lt: _Tables, state: PathState, k, p, fn, sgn, pri
     vis = np.flatnonzero(~blocked)
     tr.add(np.take(idx, np.take(go, vis)), np.take(contrib, vis, 1))
     tr.rays += int(go.size)
+
+
+def _mis_weight(lt: _Tables, p_this, p_other):
+    """The power (or balance) heuristic for positive finite densities, written
+    out: ``1 / (1 + (p_other / p_this)^beta)`` (the kernel's own densities need
+    none of :func:`mcvar.estimators.power_heuristic`'s checks and special cases)."""
+    r = p_other / p_this
+    if lt.mis_beta == 2.0:
+        r *= r
+    r += 1.0
+    return np.divide(1.0, r, out=r)
+
+
+def _hit_light(tr: Transport, lt: _Tables, state: PathState, t, prim) -> None:
+    """Emission found by BSDF sampling (segments ``k >= 2``) on the one quad
+    light: ``beta Le w`` on its front, ``w`` the MIS weight against NEE's
+    density ``p_A t^2 / cos_l`` (:meth:`Transport.emission_weight` written out
+    for this kernel's scenes: no delta lobes, no emitter NEE cannot sample)."""
+    if not tr.bsdf_hits:
+        return                                     # NEE alone counts the light
+    lit = np.flatnonzero(np.take(lt.emits, prim))
+    if not lit.size:
+        return
+    d = np.take(state.d, lit, axis=1)
+    n = lt.n_l
+    cos_l = d[0] * -n[0]
+    cos_l -= d[1] * n[1]
+    cos_l -= d[2] * n[2]
+    front = cos_l > 0.0
+    if not front.all():
+        lit, cos_l, d = lit[front], cos_l[front], None
+        if not lit.size:
+            return
+    val = np.take(state.beta, lit, axis=1) * lt.le[:, None]
+    if tr.nee and tr.mis:
+        tl = np.take(t, lit)
+        p_light = tl * tl
+        p_light *= lt.pdf_area
+        p_light /= cos_l
+        val *= _mis_weight(lt, np.take(state.prev_pdf, lit), p_light)
+    tr.add(np.take(state.idx, lit), val)
