@@ -62,6 +62,9 @@ def _cmd_render(args) -> int:
                              f"it needs --integrator bdpt, not {args.integrator!r}")
         options["strategies"] = True
     scene = load_scene(args.scene)
+    # estimator options of the path methods, only when asked for (other methods do not take them)
+    tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
+                                ("rr_depth", args.rr_depth)) if v is not None}
     if _adaptive_default(args):
         from .adaptive import render_adaptive
 
@@ -69,13 +72,13 @@ def _cmd_render(args) -> int:
         result = render_adaptive(scene, integrator=args.integrator, spp=args.spp, res=args.res,
                                  sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
                                  heuristic=args.heuristic, workers=_adaptive_workers(args.workers),
-                                 progress=not args.quiet)
+                                 progress=not args.quiet, **tuning)
     else:
         result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
                         sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
                         heuristic=args.heuristic, batch_spp=args.batch_spp,
                         workers=1 if args.workers is None else args.workers, progress=not args.quiet,
-                        **options)
+                        **options, **tuning)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
@@ -205,6 +208,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the same spp in every pixel (the previous behaviour); default for path/direct "
                         "integrators at >= 16 spp: unbiased adaptive sampling (a pilot decides where "
                         "the samples go, docs/performance.md)")
+    p.add_argument("--visible-lights", choices=("exact", "sampled"), default=None,
+                   help="lights seen directly by the camera: their exact pixel integral plus sampled "
+                        "differences (a control variate; default for adaptive renders) or plain sampling "
+                        "(default with --uniform)")
+    p.add_argument("--rr-threshold", type=float, default=None,
+                   help="Russian roulette survival max(beta) / THRESHOLD, in (0, 1] (default: 0.2 for "
+                        "adaptive renders, a weight window; 1, pbrt's rule, with --uniform)")
+    p.add_argument("--rr-depth", type=int, default=None,
+                   help="segments before Russian roulette starts (default 3)")
     p.add_argument("--out", type=Path, default=Path("out/render.png"), help=".npy, .png or .exr")
     p.set_defaults(func=_cmd_render)
 

@@ -60,3 +60,26 @@ def test_render_default_spreads_adaptive_renders_over_both_cores(tmp_path, monke
         assert main(base + extra) == 0
     assert seen == [min(2, os.cpu_count() or 1), 1, 1]
     capsys.readouterr()
+
+
+def test_render_estimator_flags_reach_both_renderers(tmp_path, capsys):
+    """``--visible-lights``, ``--rr-threshold`` and ``--rr-depth`` give the
+    library's images for the same options: the adaptive default's previous
+    configuration (sampled lights, pbrt's roulette from 7 segments) and a
+    uniform render with the exact light."""
+    scene = load_scene("cornell")
+    out = tmp_path / "a.npy"
+    assert main(["render", "cornell", "--res", "8", "--spp", "16", "--seed", "3", "--quiet",
+                 "--visible-lights", "sampled", "--rr-threshold", "1", "--rr-depth", "7", "--out", str(out)]) == 0
+    expect = render_adaptive(scene, spp=16, res=8, sampler="sobol", rng=3, visible_lights="sampled",
+                             rr_threshold=1.0, rr_depth=7).image
+    assert np.array_equal(np.load(out), expect.astype(np.float32))
+    assert not np.array_equal(expect, render_adaptive(scene, spp=16, res=8, sampler="sobol", rng=3).image)
+    out2 = tmp_path / "b.npy"
+    assert main(["render", "cornell", "--res", "8", "--spp", "16", "--seed", "3", "--quiet", "--uniform",
+                 "--visible-lights", "exact", "--out", str(out2)]) == 0
+    uniform = render(scene, spp=16, res=8, sampler="sobol", rng=3, visible_lights="exact").image
+    assert np.array_equal(np.load(out2), uniform.astype(np.float32))
+    assert main(["render", "cornell", "--res", "8", "--spp", "16", "--quiet", "--rr-threshold", "2",
+                 "--out", str(tmp_path / "c.npy")]) == 2
+    capsys.readouterr()
