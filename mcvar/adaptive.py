@@ -43,7 +43,7 @@ from scipy.ndimage import maximum_filter
 from ._validation import as_rng, check_choice, check_count
 from .integrators import HEURISTICS, LIGHT_SAMPLING, PATHS_PER_BATCH, VISIBLE_LIGHTS, Render, VisibleLights, trace_paths
 from .integrators.path import _check_rr_threshold
-from .samplers import SAMPLERS, pixel_samples
+from .samplers import SAMPLERS, _pixel_sample_columns
 from .scene import Scene
 from .tracer import Tracer
 
@@ -139,11 +139,11 @@ def _run_level(token, scene, integrator, sampler, res, max_depth, heuristic, pre
     rng = np.random.default_rng(seed)
     m = pixels.shape[0]
     dim = ADAPTIVE_DIM if sampler != "random" else 2
-    u = pixel_samples(sampler, m, n, dim=dim, rng=rng).reshape(m * n, dim)
+    cols = _pixel_sample_columns(sampler, m, n, dim=dim, rng=rng)      # (dim, m n): rows, no transposes
     pixel = np.repeat(pixels, n)
-    d = scene.camera.ray_directions_soa(res, pixel, u[:, 0:2]).T
+    d = scene.camera.ray_directions_soa(res, pixel, cols[0:2].T).T
     o = np.broadcast_to(scene.camera.position, d.shape)
-    radiance, rays = trace_paths(scene, o, d, u[:, 2:], integrator=integrator, max_depth=max_depth,
+    radiance, rays = trace_paths(scene, o, d, cols[2:].T, integrator=integrator, max_depth=max_depth,
                                  heuristic=heuristic, rng=rng, tracer=tracer, light_sampling=light_sampling,
                                  rr_depth=rr_depth, visible_lights=visible_lights, rr_threshold=rr_threshold)
     if visible_lights == "exact":

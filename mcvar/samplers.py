@@ -880,3 +880,41 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
             block = _shuffle(block, gen)
         out[:, :, 2 * k:2 * k + 2] = block
     return out[:, :, :d]
+
+
+def _pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.ndarray:
+    """:func:`pixel_samples` as columns: ``(dim, n_pixels * spp)``, the same values.
+
+    ``out[j, p * spp + i] == pixel_samples(...)[p, i, j]`` for the same
+    ``rng``: the layout a wavefront tracer reads (a dimension is one
+    contiguous row), without the interleaved ``(..., dim)`` array and its
+    transposes. For ``sobol`` the XOR shift and the padding shuffle are
+    written straight into the rows (the same draws in the same order);
+    other samplers are transposed from :func:`pixel_samples`.
+    """
+    if name != "sobol":
+        return np.ascontiguousarray(pixel_samples(name, n_pixels, spp, dim=dim, rng=rng).reshape(-1, dim).T)
+    n_pixels = check_count(n_pixels, "n_pixels")
+    spp = check_count(spp, "spp")
+    d = _check_dim(dim)
+    _check_memory(spp, max(d, 2), "pixel_samples", what="spp", sets=n_pixels)
+    pairs = (d + 1) // 2
+    streams = as_rng(rng).spawn(pairs)
+    bits = np.ldexp(_sobol_points(spp, 2, False, None), _FRACTION_BITS).astype(np.uint64)   # (spp, 2)
+    out = np.empty((2 * pairs, n_pixels * spp))
+    scale = 2.0 ** -_FRACTION_BITS
+    for k, gen in enumerate(streams):
+        shifts = gen.integers(0, 2 ** _FRACTION_BITS, size=(n_pixels, 1, 2), dtype=np.uint64)
+        order = None
+        if k:        # _shuffle's permutation, drawn after the shifts as there
+            order = gen.permuted(np.broadcast_to(np.arange(spp), (n_pixels, spp)), axis=-1)
+            order += np.arange(n_pixels)[:, None] * spp
+            order = order.ravel()
+        for c in range(2):
+            col = (bits[None, :, c] ^ shifts[:, :, c]).reshape(-1)
+            if order is not None:
+                col = col[order]
+            row = out[2 * k + c]
+            row[...] = col
+            row *= scale
+    return out[:d]

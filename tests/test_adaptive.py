@@ -110,14 +110,14 @@ def test_two_workers_split_batches_between_the_parent_and_the_pool(cornell, monk
     monkeypatch.setattr(adaptive, "PILOT_PATHS_PER_BATCH", 4)       # 64 pilot batches of one pixel (4 spp)
     parent = os.getpid()
     ran = []
-    inner = adaptive.pixel_samples          # called once per batch, by whoever runs it
+    inner = adaptive._pixel_sample_columns          # called once per batch, by whoever runs it
 
     def counted(*a, **k):
         if os.getpid() == parent:       # forked pool processes count in their own memory
             ran.append(1)
         return inner(*a, **k)
 
-    monkeypatch.setattr(adaptive, "pixel_samples", counted)
+    monkeypatch.setattr(adaptive, "_pixel_sample_columns", counted)
     one = render_adaptive(cornell, spp=64, res=8, sampler="sobol", rng=SEED, workers=1)
     n_batches = len(ran)
     ran.clear()

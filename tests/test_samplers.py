@@ -419,3 +419,13 @@ def test_deterministic_names_exactly_the_samplers_that_ignore_rng():
     for name in NAMES:
         a, b = S.SAMPLERS[name](64, rng=1), S.SAMPLERS[name](64, rng=2)
         assert np.array_equal(a, b) == (name in S.DETERMINISTIC), name
+
+
+@pytest.mark.parametrize("name, dim", [("sobol", 2), ("sobol", 5), ("sobol", 6), ("halton", 3), ("random", 4)])
+def test_pixel_sample_columns_are_pixel_samples_transposed(name, dim):
+    """The wavefront's column layout holds exactly pixel_samples' values for the same rng."""
+    from mcvar.samplers import _pixel_sample_columns
+    a = S.pixel_samples(name, 37, 16, dim=dim, rng=7).reshape(-1, dim).T
+    b = _pixel_sample_columns(name, 37, 16, dim=dim, rng=7)
+    assert b.shape == (dim, 37 * 16) and b.flags.c_contiguous
+    np.testing.assert_array_equal(a, b)

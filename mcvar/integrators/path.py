@@ -167,7 +167,7 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
     rng = as_rng(rng)
     check_choice(visible_lights, "visible_lights", VISIBLE_LIGHTS)
     rr_threshold = _check_rr_threshold(rr_threshold)
-    if visible_lights == "exact" and not np.all(np.asarray(origins) == scene.camera.position):
+    if visible_lights == "exact" and not _all_at(origins, scene.camera.position):
         raise ValueError("visible_lights='exact' needs camera rays: every origin at scene.camera.position")
     tracer = tracer if tracer is not None else Tracer(scene)
     stream = SampleStream(None if u is None else np.asarray(u, dtype=np.float64), rng, camera=False)
@@ -360,6 +360,15 @@ def run_path_batch(name: str, job: BatchJob) -> BatchResult:
     if exact == "exact":
         radiance += VisibleLights(job.scene).image(job.res)[pixel]
     return camera_result(job, radiance, rays, name)
+
+
+def _all_at(points, position) -> bool:
+    """Every row of ``points`` (n, 3) equals ``position``; one row when they are
+    a broadcast of it (stride 0), as the renderers' camera rays are."""
+    a = np.asarray(points)
+    if a.ndim == 2 and a.shape[0] and a.strides[0] == 0:
+        a = a[:1]
+    return bool(np.all(a == position))
 
 
 def _check_rr_threshold(value) -> float:
