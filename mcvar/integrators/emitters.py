@@ -337,14 +337,20 @@ class VisibleLights:
         self.lights = np.array(lights, dtype=np.int64)
         self.prim_exact = np.zeros(n_prim + 1, dtype=bool)
         self.prim_exact[:n_prim] = np.isin(scene.prim_light, self.lights)
-        # per light: the plane (origin, unit normal) and the dual basis of (e1, e2)
+        # per light: the plane (origin, unit normal), the dual basis of (e1, e2),
+        # its radiance, and the cone from the camera that holds it (axis, cos)
         self._planes = []
+        cam = scene.camera.position
         for k in self.lights:
             o, e1, e2 = scene.light_origin[k], scene.light_edge1[k], scene.light_edge2[k]
             nrm = np.cross(e1, e2)
             n2 = nrm @ nrm
+            corners = np.stack([o, o + e1, o + e1 + e2, o + e2]) - cam
+            axis = corners.sum(axis=0)
+            axis /= np.linalg.norm(axis)
+            cos_min = float((corners @ axis / np.linalg.norm(corners, axis=1)).min())
             self._planes.append((k, o, nrm / np.sqrt(n2), np.cross(e2, nrm) / n2, np.cross(nrm, e1) / n2,
-                                 scene.light_radiance[k]))
+                                 scene.light_radiance[k], [float(a) for a in axis], cos_min))
 
     def __bool__(self) -> bool:
         return self.lights.size > 0
@@ -378,7 +384,7 @@ class VisibleLights:
         out = np.zeros((height * width, 3))
         cam = self.scene.camera
         forward = cam.basis()[0]
-        for k, o, _, _, _, le in self._planes:
+        for k, o, _, _, _, le, _, _ in self._planes:
             e1, e2 = self.scene.light_edge1[k], self.scene.light_edge2[k]
             corners = np.stack([o, o + e1, o + e1 + e2, o + e2])
             # the part in front of the pinhole (a light may reach behind it)
@@ -404,13 +410,7 @@ class VisibleLights:
         """
         n = t_hit.shape[0]
         out = np.zeros((3, n))
-        cam = self.scene.camera.position
-        for k, lo, nrm, g1, g2, le in self._planes:
-            e1, e2 = self.scene.light_edge1[k], self.scene.light_edge2[k]
-            corners = np.stack([lo, lo + e1, lo + e1 + e2, lo + e2]) - cam
-            axis = corners.sum(axis=0)
-            axis /= np.linalg.norm(axis)
-            cos_min = (corners @ axis / np.linalg.norm(corners, axis=1)).min()
+        for k, lo, nrm, g1, g2, le, axis, cos_min in self._planes:
             near = axis[0] * d[0]
             near += axis[1] * d[1]
             near += axis[2] * d[2]
