@@ -1,0 +1,135 @@
+"""docs/slips.md states the numbers mcvar computes (issue 25: the slides' slips, measured).
+
+The page is generated from ``docs/slips.py``'s TEMPLATE; here every number on the committed page is
+parsed back (the text around the numbers must match the template word for word), recomputed with
+the same fixed seeds, and compared: within half a unit of the last printed digit, plus, for Monte
+Carlo values, ``z`` standard errors of the difference of two independent estimates (``sqrt(2)``
+times the stated standard error), ``z`` Sidak-corrected over all Monte Carlo numbers of the page
+at family-wise alpha = 1e-3. (With this NumPy the recomputation draws the same numbers; the
+statistical tolerance is there for a NumPy whose bit stream differs.)
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+import sys
+from pathlib import Path
+
+import pytest
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_slips():
+    spec = importlib.util.spec_from_file_location("docs_slips", ROOT / "docs" / "slips.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["docs_slips"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+slips = _load_slips()
+
+# the slips issue 25 lists, each a section of the page (heading words that must be there)
+ISSUE_SLIPS = {
+    "passthrough (f = 0.85 reflects 0.85 pi)": "### 1. 'A BRDF is a passthrough function'",
+    "measured in steradians": "### 2. 'Measured in steradians': per steradian",
+    "diffuse exitant radiance, cosine weighted": "### 3. Diffuse exitant radiance is a cosine-weighted average",
+    "TIR derivation drops (eta_i/eta_t)^2": "### 5. The TIR derivation drops",
+    "refraction without eta^2 radiance scaling": "### 6. Refraction changes radiance by",
+    "Schlick with the cosine inside the dense medium": "### 7. Schlick with the cosine inside the dense medium",
+    "env-map pixel probability without its Jacobian": "### 8. The pixel probability is not a pdf per solid angle",
+    "importance-sampling code never divides by the pdf": "### 9. The importance-sampling code never divides",
+    "rasterization and direct lighting 'one ray'": "### 10. Direct lighting traces more than one ray",
+    "MIS 'averaging' two rays": "### 11. MIS does not average the two rays",
+    "'unbiased approaches the truth' is consistency": "### 12. 'Approaches ground truth with infinite sampling' is consistency",
+    "variance 'how far from the average, on average'": "### 13. Variance is the mean *squared* distance",
+    "jittering 'ensures distance'": "### 14. Jittering does not ensure any distance",
+    "n-rooks 'shuffle until'": "### 15. 'Shuffle until the rooks condition is satisfied'",
+    "BDPT unbiased because no point-source connections": "### 16. BDPT connects through point sources",
+    "MH 'relative darkness'": "### 17. Metropolis moves towards *brightness*",
+    "chart: photon mapping consistent only as the radius shrinks": "### 18. Photon mapping is consistent only as the radius shrinks",
+    "chart: radiosity consistent under mesh refinement": "### 19. Finite-element radiosity is consistent under mesh refinement",
+}
+
+
+def _half_unit(text: str) -> float:
+    """Half a unit in the last printed digit of ``text`` ('0.0123' -> 5e-5, '1.2e-04' -> 5e-6)."""
+    mantissa, _, exponent = text.lower().partition("e")
+    decimals = len(mantissa.partition(".")[2])
+    return 0.5 * 10.0 ** (int(exponent or 0) - decimals)
+
+
+def check_page(page: str, values: dict) -> list[str]:
+    """Every disagreement between ``page`` and ``values`` (:func:`slips.measure`), as messages."""
+    stated = slips.parse(page)
+    mc = sum(1 for key, _ in stated if not key.endswith(".se") and slips._scaled(key, values)[1] > 0)
+    alpha = 1.0 - (1.0 - 1e-3) ** (1.0 / max(mc, 1))
+    z = stats.norm.isf(alpha / 2)
+    problems = []
+    for key, text in stated:
+        value, stderr = slips._scaled(key, values)
+        printed = float(text)
+        if key.endswith(".se"):
+            # a standard error is itself estimated: agree within 20 % (plus rounding)
+            tol = _half_unit(text) + 0.2 * abs(value)
+        else:
+            tol = _half_unit(text) + z * math.sqrt(2.0) * stderr + 1e-12 * abs(value)
+        if not abs(printed - value) <= tol:
+            problems.append(f"{key}: page says {text}, mcvar computes {value:.6g} +- {stderr:.2g} (tolerance {tol:.2g})")
+    return problems
+
+
+@pytest.fixture(scope="module")
+def values():
+    return slips.measure()
+
+
+@pytest.fixture(scope="module")
+def page():
+    return slips.PAGE.read_text()
+
+
+def test_every_number_on_the_page_is_what_mcvar_computes(page, values):
+    assert check_page(page, values) == []
+
+
+def test_every_measured_number_is_on_the_page(values):
+    keys = {key.removesuffix(".se") for key, _ in slips.placeholders()}
+    assert keys == set(values), (set(values) - keys, keys - set(values))
+
+
+def test_every_slip_of_the_issue_has_a_section(page):
+    missing = [name for name, heading in ISSUE_SLIPS.items() if heading not in page]
+    assert missing == []
+    # and a number in each section
+    sections = re.split(r"\n### ", page)[1:]
+    for section in sections:
+        assert "**Measured" in section and re.search(r"\d\.\d", section), section[:60]
+
+
+def test_a_wrong_number_on_the_page_is_caught(page, values):
+    # plant a slip of our own: the Schlick error beyond the critical angle, off in its third digit
+    key = "schlick.max_err"
+    good = format(values[key][0], ".4f")
+    assert good in page
+    assert check_page(page.replace(good, format(values[key][0] + 0.002, ".4f"), 1), values) != []
+    # a Monte Carlo number moved by 10 standard errors
+    key = "tir.fraction"
+    v, se = values[key]
+    text = format(v, ".4f")
+    bad = page.replace(f"a fraction {text}", f"a fraction {format(v + 10 * se, '.4f')}", 1)
+    assert bad != page and check_page(bad, values) != []
+
+
+def test_edited_prose_is_caught(page):
+    with pytest.raises(ValueError, match="regenerate"):
+        slips.parse(page.replace("consistent only as the radius shrinks", "consistent", 1))
+
+
+def test_the_page_is_in_the_nav_and_linked():
+    assert "slips.md" in (ROOT / "mkdocs.yml").read_text()
+    assert "slips.md" in (ROOT / "docs" / "index.md").read_text()
+    assert "slips.md" in (ROOT / "README.md").read_text()
