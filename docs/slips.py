@@ -447,10 +447,32 @@ def _chart_rows(rng):
     return out
 
 
+def _copper(rng):
+    """'Copper absorbs some colors, and emits the rest' (Copper Exitant Radiance)."""
+    from mcvar import bsdf as B
+    cu = B.Conductor.preset("copper")
+    out = {}
+    for ch, name in enumerate("rgb"):
+        out[f"copper.r0_{name}"] = _exact(cu.reflectance[ch])
+    return out
+
+
+def _lambert_directions(rng):
+    """'Light is equally likely to be reflected in each output direction' (Lambertian Material)."""
+    from mcvar import bsdf as B
+    n = 200_000
+    wo = np.tile([[0.0, 1.0, 0.0]], (n, 1))
+    s = B.Lambertian(0.8).sample(wo, rng.random((n, 2)))      # reflected directions of light from the normal
+    cos30 = math.cos(math.radians(30.0))
+    return {"lambdir.within30": _est(s.wi[:, 1] > cos30), "lambdir.exact": _exact(0.25),
+            "lambdir.solid_angle": _exact(1 - cos30)}
+
+
 MEASUREMENTS = (_passthrough, _steradians, _diffuse_average, _lambertian_weight, _tir, _eta2, _schlick,
                 _envmap_jacobian, _undivided, _rays, _unbiased_consistent, _variance_wording,
                 _consistency_definition, _jitter_distance, _n_rooks, _hammersley, _grid_discrepancy,
-                _blue_anisotropy, _brdf_pdf, _mirror, _bdpt_point, _mh_darkness, _mis_average, _chart_rows)
+                _blue_anisotropy, _brdf_pdf, _mirror, _bdpt_point, _mh_darkness, _mis_average, _chart_rows,
+                _copper, _lambert_directions)
 
 
 def measure(seed: int = SEED) -> dict[str, tuple[float, float]]:
@@ -495,8 +517,11 @@ The notebook where the topic is taught ends its lesson with a short *Slips in th
 | 17 | Metropolis Hasting: Sampling An Image | "relative darkness" | relative brightness | 08 |
 | 18 | Rendering Algorithm Chart | photon mapping "consistent: yes" | only as the radius shrinks | 09 |
 | 19 | Rendering Algorithm Chart | radiosity "consistent: no" | consistent under mesh refinement | 09 |
+| 20 | Copper Exitant Radiance | copper "absorbs some colors, and emits the rest" | it reflects the rest | 03 |
+| 21 | Lambertian Material | light "equally likely to be reflected in each output direction" | equal radiance; the directions follow the cosine | 03 |
 
-Slips flagged earlier in the notebooks, with their numbers, are collected [at the end](#flagged-earlier-in-the-notebooks).
+Rows 1 to 19 are the slips issue 25 lists; 20 and 21 were found on the way. Slips flagged earlier in the
+notebooks, with their numbers, are collected [at the end](#flagged-earlier-in-the-notebooks).
 
 ## BRDFs and materials (notebook 03)
 
@@ -591,6 +616,30 @@ dense side (the transmitted one), and $R = 1$ beyond the critical angle.
 with the cosine inside the glass, Schlick gives [[schlick.at45|.4f]] at 45 degrees; its largest error
 there is [[schlick.max_err|.4f]] and its mean error (over the angle) [[schlick.mean_err|.4f]].
 `mcvar.optics.fresnel_schlick`, with the transmitted cosine, errs by [[schlick.mcvar_err|.1f]] there.
+
+### 20. Copper reflects the colours it does not absorb; it emits nothing
+
+**Slide** *Copper Exitant Radiance*: "Copper absorbs some colors, and emits the rest, giving it a 'warm
+brown' color."
+
+**Right.** A metal emits no light (no $L_e$ at these temperatures): it *reflects* the rest, with a Fresnel
+reflectance that depends on the wavelength.
+
+**Measured** (`Conductor.preset("copper")`, Johnson and Christy's indices at 659.5, 548.6 and 450.9 nm):
+the reflectance at normal incidence is [[copper.r0_r|.4f]] (R), [[copper.r0_g|.4f]] (G),
+[[copper.r0_b|.4f]] (B); the remainder is absorbed.
+
+### 21. A Lambertian surface does not send light equally in every direction
+
+**Slide** *Lambertian Material*: "Light is equally likely to be reflected in each output direction".
+
+**Right.** The reflected *radiance* is the same in every direction; the reflected *light* (flux per solid
+angle) falls with $\cos\theta_o$, so directions near the normal are more likely.
+
+**Measured** (directions of light reflected by `Lambertian(0.8)`, 200 000 samples): a fraction
+[[lambdir.within30|.4f]] ± [[lambdir.within30.se|.4f]] leaves within 30 degrees of the normal
+($\sin^2 30°$ = [[lambdir.exact|.4f]]), while that cone holds only [[lambdir.solid_angle|.4f]] of the
+hemisphere's solid angle.
 
 ## Environment lighting (notebook 04)
 
