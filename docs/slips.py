@@ -687,8 +687,8 @@ whether the light is visible from it: a shadow ray per hit, and with MIS a BSDF 
 
 **Slide** *Multiple Importance Sampling*: "MIS allows us to take both rays and average them together".
 
-**Right.** Averaging the light-sampled and the BSDF-sampled estimates is unbiased but keeps half of
-the worse one's noise: variance $(V_L + V_B)/4$. MIS weights each sample by how likely *each*
+**Right.** Averaging the light-sampled and the BSDF-sampled estimates is unbiased but keeps a quarter
+of each strategy's variance, $(V_L + V_B)/4$: half the worse one's standard deviation survives. MIS weights each sample by how likely *each*
 strategy was to produce it (balance heuristic $w_k = p_k / \sum_l p_l$), which is what removes the noise.
 
 **Measured** (direct light at a glossy point: a light filling a cone about the normal, a Phong lobe
