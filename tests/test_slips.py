@@ -138,3 +138,15 @@ def test_the_page_is_in_the_nav_and_linked():
     assert "slips.md" in (ROOT / "mkdocs.yml").read_text()
     assert "slips.md" in (ROOT / "docs" / "index.md").read_text()
     assert "slips.md" in (ROOT / "README.md").read_text()
+
+
+@pytest.mark.parametrize("number", ["01", "02", "03", "04", "05", "06"])
+def test_notebook_measures_its_slips_and_links_the_page(number):
+    import nbformat
+    path = next((ROOT / "notebooks").glob(f"{number}_*.ipynb"))
+    cells = nbformat.read(path, as_version=4).cells
+    heads = [i for i, c in enumerate(cells) if c.cell_type == "markdown" and c.source.startswith("## Slips in the slides")]
+    assert len(heads) == 1, path.name
+    i = heads[0]
+    assert "slips.md" in cells[i].source
+    assert cells[i + 1].cell_type == "code" and "print(" in cells[i + 1].source   # the cell that measures
