@@ -150,3 +150,66 @@ def test_notebook_measures_its_slips_and_links_the_page(number):
     i = heads[0]
     assert "slips.md" in cells[i].source
     assert cells[i + 1].cell_type == "code" and "print(" in cells[i + 1].source   # the cell that measures
+
+
+def test_the_claims_hold_against_exact_values(values):
+    """What the page says each number shows, checked against closed forms and identities (not only
+    against mcvar's own recomputation): Monte Carlo values within 5 standard errors."""
+    v = {k: x for k, (x, _) in values.items()}
+    se = {k: s for k, (_, s) in values.items()}
+
+    def near(key, exact, z=5.0):
+        assert abs(v[key] - exact) <= z * se[key] + 1e-12 * abs(exact), (key, v[key], exact, se[key])
+
+    near("passthrough.reflected", 0.85 * math.pi)
+    assert v["passthrough.lambertian"] == pytest.approx(0.85, abs=1e-12)
+    assert v["sr.lo_deg"] == pytest.approx(0.8, rel=1e-6)                    # the unit changes f, not L_o
+    near("diffuse.cosine", 2 / 3)
+    near("diffuse.uniform", 1 / 2)
+    assert v["lambert.max_dev"] <= 1e-15
+    near("tir.fraction", math.sqrt(1 - 1 / 1.5 ** 2))
+    assert v["tir.dropped_negative"] == 0.0
+    assert v["eta2.radiance_0"] == pytest.approx(0.96 * 2.25, rel=1e-4)
+    assert v["eta2.radiance_45"] / v["eta2.transmit_45"] == pytest.approx(2.25, rel=1e-4)
+    assert v["schlick.max_err"] > 0.9 and v["schlick.mcvar_err"] == 0.0
+    near("env.chi2_right", 1.0)                                             # se = sqrt(2 / dof)
+    assert v["env.chi2_wrong"] > 10.0
+    assert v["env.divided_pdf"] == pytest.approx(v["env.integral"], rel=1e-9)
+    assert v["env.divided_pixel"] > 100 * v["env.integral"]
+    near("undiv.divided", v["undiv.exact"])
+    assert v["undiv.undivided"] > 10 * v["undiv.exact"]
+    assert v["rays.raster"] == 1.0 and v["rays.direct_light"] > 1.5 and v["rays.direct"] > 2.0
+    for case in ("a", "b"):
+        near(f"mis.{case}_mis", v[f"mis.{case}_exact"])
+        near(f"mis.{case}_avg", v[f"mis.{case}_exact"])
+        # averaging two independent estimates: a quarter of each variance
+        avg = (v[f"mis.{case}_var_light"] + v[f"mis.{case}_var_bsdf"]) / 4
+        tol = 5 * math.hypot(se[f"mis.{case}_var_avg"], math.hypot(se[f"mis.{case}_var_light"], se[f"mis.{case}_var_bsdf"]) / 4)
+        assert abs(v[f"mis.{case}_var_avg"] - avg) <= tol
+        assert v[f"mis.{case}_var_mis"] < v[f"mis.{case}_var_avg"] / 10
+    near("unb.single_mean", 2.0)
+    assert v["unb.single_rmse"] == pytest.approx(2.0, abs=1e-12)           # every value is 0 or 4
+    biases = [abs(v[f"unb.grid_{m}"]) for m in (8, 64, 512)]
+    assert biases[0] > biases[1] > biases[2] > 0                            # biased, and consistent
+    near("var.u_mad", 0.25)
+    near("var.u_var", 1 / 12)
+    assert v["cdef.p0"] > 0.97
+    assert v["jit.jittered_p01"] > 0.1 and v["jit.blue_noise_min"] > 0.7
+    assert v["rooks.shuffle_ok"] == 1.0 and v["rooks.mcvar_ok"] == 1.0
+    assert v["rooks.random_columns"] == pytest.approx(math.factorial(16) / 16 ** 16, rel=1e-9)
+    assert v["ham.phi13"] == 11 / 16
+    assert v["grid.star"] > 3 * v["grid.sobol"]
+    assert v["blue.aniso"] < 2.0 and v["blue.grid_aniso"] > 10.0
+    assert v["pdf.int_f"] == pytest.approx(1.6, rel=1e-8)
+    assert v["mirror.cone"] < 1e-5
+    assert abs(v["bdpt.z"]) < stats.norm.isf(1e-3 / 2) and v["bdpt.path_bsdf"] == 0.0
+    near("mh.bright", 1 / 1.1)
+    near("mh.dark", 0.1 / 1.1)
+    # photon mapping at a fixed radius: the MSE stalls (a consistent estimator would lose 3/4 of it
+    # from 16 to 64 times 2048 photons); SPPM and radiosity keep falling
+    p16, p64 = v["chart.photon_16"], v["chart.photon_64"]
+    assert p64 - p16 / 4 > 3 * math.hypot(se["chart.photon_64"], se["chart.photon_16"] / 4)
+    assert v["chart.sppm_1"] - v["chart.sppm_16"] > 3 * math.hypot(se["chart.sppm_1"], se["chart.sppm_16"])
+    assert v["chart.radiosity_1"] - 5 * v["chart.radiosity_16"] > 3 * math.hypot(se["chart.radiosity_1"], 5 * se["chart.radiosity_16"])
+    assert v["copper.r0_r"] > v["copper.r0_g"] > v["copper.r0_b"]
+    near("lambdir.within30", 0.25)
