@@ -158,7 +158,11 @@ def _schlick(rng):
     inside = r0 + (1 - r0) * (1 - c) ** 5                      # Schlick with the cosine in the glass
     right = optics.fresnel_schlick(c, 1.5, 1.0)                # with the transmitted cosine (mcvar)
     c45 = math.cos(math.radians(45.0))
-    return {"schlick.at45": _exact(r0 + (1 - r0) * (1 - c45) ** 5),
+    below = np.cos(np.linspace(0.0, theta_c - 1e-9, 20_001))     # below the critical angle, glass to air
+    exact_below = optics.fresnel_dielectric(below, 1.5, 1.0)
+    return {"schlick.below_mcvar": _exact(np.max(np.abs(optics.fresnel_schlick(below, 1.5, 1.0) - exact_below))),
+            "schlick.below_inside": _exact(np.max(np.abs(r0 + (1 - r0) * (1 - below) ** 5 - exact_below))),
+            "schlick.at45": _exact(r0 + (1 - r0) * (1 - c45) ** 5),
             "schlick.max_err": _exact(np.max(np.abs(exact - inside))),
             "schlick.mean_err": _exact(np.mean(np.abs(exact - inside))),
             "schlick.mcvar_err": _exact(np.max(np.abs(exact - right)))}
@@ -615,7 +619,9 @@ dense side (the transmitted one), and $R = 1$ beyond the critical angle.
 **Measured** (glass to air, beyond the critical angle, where the exact Fresnel reflectance is 1):
 with the cosine inside the glass, Schlick gives [[schlick.at45|.4f]] at 45 degrees; its largest error
 there is [[schlick.max_err|.4f]] and its mean error (over the angle) [[schlick.mean_err|.4f]].
-`mcvar.optics.fresnel_schlick`, with the transmitted cosine, errs by [[schlick.mcvar_err|.1f]] there.
+`mcvar.optics.fresnel_schlick`, with the transmitted cosine, errs by [[schlick.mcvar_err|.1f]] there. Below the
+critical angle, where the exact reflectance climbs to 1, the incident cosine errs by up to
+[[schlick.below_inside|.4f]] and the transmitted one by up to [[schlick.below_mcvar|.4f]].
 
 ### 20. Copper reflects the colours it does not absorb; it emits nothing
 

@@ -172,6 +172,7 @@ def test_the_claims_hold_against_exact_values(values):
     assert v["eta2.radiance_0"] == pytest.approx(0.96 * 2.25, rel=1e-4)
     assert v["eta2.radiance_45"] / v["eta2.transmit_45"] == pytest.approx(2.25, rel=1e-4)
     assert v["schlick.max_err"] > 0.9 and v["schlick.mcvar_err"] == 0.0
+    assert v["schlick.below_mcvar"] < v["schlick.below_inside"] / 2
     near("env.chi2_right", 1.0)                                             # se = sqrt(2 / dof)
     assert v["env.chi2_wrong"] > 10.0
     assert v["env.divided_pdf"] == pytest.approx(v["env.integral"], rel=1e-9)
