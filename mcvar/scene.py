@@ -39,14 +39,16 @@ Scenes
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
 from .bsdf import Glass, Lambertian, Mirror
 from .geometry import normalize
+from .scenefile import read_scene_file
 
 __all__ = [
     "Camera",
@@ -446,6 +448,13 @@ class Scene:
         Radiant intensity ``I`` (W/sr, linear RGB) emitted uniformly in all
         directions: irradiance ``I cos / r^2`` at distance ``r``, power
         ``4 pi I``.
+    render_defaults : mapping
+        What a scene file says about rendering it (default empty): ``res``
+        ``(width, height)`` of its film, ``spp`` (its sampler's
+        sample_count), ``max_depth`` (None: no limit) and ``rr_depth``.
+        ``mcvar render`` and ``mcvar converge`` use them unless their
+        options say otherwise; :func:`mcvar.integrators.render` does not
+        read them.
     """
 
     name: str
@@ -470,6 +479,7 @@ class Scene:
     description: str = field(default="")
     point_light_position: np.ndarray | None = None
     point_light_intensity: np.ndarray | None = None
+    render_defaults: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
         tri = _frozen(self.triangles).reshape(-1, 3, 3)
@@ -859,21 +869,33 @@ SCENES: dict[str, Callable[..., Scene]] = {
 }
 
 
-def load_scene(name: str, **options) -> Scene:
-    """Build the scene called ``name``.
+def load_scene(name, **options) -> Scene:
+    """Build the scene called ``name``, or read it from a Mitsuba 3 XML file.
 
     Parameters
     ----------
-    name : str
+    name : str or path
         One of ``'cornell'``, ``'cornell-spheres'``, ``'cornell-point'``, ``'checkerboard'``,
-        ``'furnace'``, ``'quad-environment'``.
+        ``'furnace'``, ``'quad-environment'``, ``'cornell-door'``; or the path
+        of a Mitsuba 3 scene file (``.xml``; docs/scene-files.md lists the
+        supported subset).
     **options
-        Passed to the builder (e.g. ``albedo=0.8`` for ``'furnace'``).
+        Passed to the builder (e.g. ``albedo=0.8`` for ``'furnace'``); for a
+        file, values replacing its ``<default>`` entries (Mitsuba's ``-D
+        name=value``).
 
     Returns
     -------
     Scene
-        Fresh read-only arrays on every call.
+        Fresh read-only arrays on every call. A file's film size, sample
+        count and path depth are in ``Scene.render_defaults``.
+
+    Raises
+    ------
+    ValueError
+        An unknown name, or a file mcvar cannot read: the message names the
+        file, the line and the element, and what is supported
+        (:class:`mcvar.scenefile.SceneFileError`).
 
     Examples
     --------
@@ -881,11 +903,22 @@ def load_scene(name: str, **options) -> Scene:
     >>> scene.n_triangles, scene.n_lights
     (32, 1)
     """
+    if isinstance(name, os.PathLike) or (isinstance(name, str) and name not in SCENES
+                                         and (name.lower().endswith(".xml") or os.sep in name)):
+        return _scene_from_fields(read_scene_file(name, **options))
     if not isinstance(name, str):
-        raise TypeError(f"name must be a string, one of {tuple(SCENES)}; got {type(name).__name__}")
+        raise TypeError(f"name must be a scene name, one of {tuple(SCENES)}, or the path of a Mitsuba 3 "
+                        f".xml file; got {type(name).__name__}")
     if name not in SCENES:
-        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")
+        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)} "
+                         "(or the path of a Mitsuba 3 .xml file)")
     return SCENES[name](**options)
+
+
+def _scene_from_fields(fields: dict) -> Scene:
+    fields = dict(fields)
+    fields["camera"] = Camera(**fields["camera"])
+    return Scene(**fields)
 
 
 # --------------------------------------------------------------------------

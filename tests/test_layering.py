@@ -14,6 +14,7 @@ LAYERS = {
     "samplers": 1, "geometry": 1, "metrics": 1, "images": 1,
     "discrepancy": 2, "warps": 2, "optics": 2, "piecewise": 2,
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
+    "scenefile": 3.5,
     "examples": 4,
     "scene": 4, "tracer": 4,
     "mcmc": 4,
@@ -31,6 +32,7 @@ PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
+    "scenefile": ["xml", "mesh", "build", "__init__"],
     "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "light", "bdpt", "pssmlt", "radiosity", "photon", "sppm", "driver", "__init__"],
 }
 

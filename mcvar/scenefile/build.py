@@ -1,0 +1,912 @@
+"""A Mitsuba 3 plugin tree turned into the fields of a :class:`mcvar.scene.Scene` (layer 3.5).
+
+The second half of :func:`mcvar.scene.load_scene` for files:
+:func:`scene_fields` walks the :class:`~mcvar.scenefile.xml.Node` tree of
+:func:`~mcvar.scenefile.xml.parse_xml` and returns plain data (arrays,
+:mod:`mcvar.bsdf` materials, an :class:`mcvar.envmap.EnvironmentMap`, the
+camera's ``position, look_at, up, fov_deg``); ``load_scene`` builds the
+``Scene`` and its ``Camera`` from them. docs/scene-files.md has the
+supported subset as a table; every element or property outside it is a
+:class:`~mcvar.scenefile.xml.SceneFileError` naming its line and what is
+supported.
+
+How Mitsuba's objects become mcvar's (each a documented choice):
+
+* **Shapes** become triangles (``rectangle``, ``cube``, ``disk``, ``obj``,
+  ``ply``; :mod:`mcvar.scenefile.mesh`) or analytic spheres. Meshes get a
+  triangle group of their own per 64 triangles (a median split, so the
+  tracer's bounding-box culling works like a one-level hierarchy).
+* **Area emitters** give every triangle of their shape its radiance (one
+  sided, towards the front normal). Each pair of consecutive triangles that
+  forms a parallelogram (a ``rectangle``, each face of a ``cube``, the quads
+  of a mesh) also becomes one of mcvar's parallelogram lights, which next
+  event estimation samples; the other emitting triangles and emitting
+  spheres are reached by BSDF sampling (and are origins of light subpaths):
+  unbiased either way, only the variance differs.
+* **BSDFs**: mcvar's reflection models are two-sided (the shading normal is
+  turned towards the viewer), Mitsuba's are black from behind unless wrapped
+  in ``twosided``: the same image wherever no back face is seen.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..bsdf import Conductor, Glass, Lambertian, Microfacet, Mirror, Plastic
+from ..envmap import EnvironmentMap, constant
+from ..images import read_image
+from . import mesh as _mesh
+from .xml import (PLUGIN_TAGS, PROPERTY_TAGS, Node, SceneFileError, parse_float, parse_numbers,
+                  parse_transform, parse_vector)
+
+__all__ = ["scene_fields", "SUPPORTED", "IOR", "CONDUCTORS"]
+
+#: Plugin types read, per element (docs/scene-files.md's table).
+SUPPORTED = {
+    "integrator": ("path",),
+    "sensor": ("perspective",),
+    "film": ("hdrfilm",),
+    "rfilter": ("box",),
+    "sampler": ("independent", "stratified", "multijitter", "orthogonal", "ldsampler"),
+    "shape": ("rectangle", "cube", "disk", "sphere", "obj", "ply"),
+    "bsdf": ("diffuse", "twosided", "conductor", "roughconductor", "dielectric", "plastic"),
+    "emitter": ("area", "point", "constant", "envmap"),
+    "texture": ("checkerboard (as an area emitter's radiance)",),
+}
+
+#: Mitsuba 3's named indices of refraction (its ``ior.h`` table).
+IOR = {
+    "vacuum": 1.0, "helium": 1.000036, "hydrogen": 1.000132, "air": 1.000277,
+    "carbon dioxide": 1.00045, "water": 1.3330, "acetone": 1.36, "ethanol": 1.361,
+    "carbon tetrachloride": 1.461, "glycerol": 1.4729, "benzene": 1.501,
+    "silicone oil": 1.52045, "bromine": 1.661, "water ice": 1.31, "fused quartz": 1.458,
+    "pyrex": 1.470, "acrylic glass": 1.49, "polypropylene": 1.49, "bk7": 1.5046,
+    "sodium chloride": 1.544, "amber": 1.55, "pet": 1.5750, "diamond": 2.419,
+}
+
+#: Mitsuba conductor names that mcvar has (``Conductor.preset``; Johnson and
+#: Christy's data at three wavelengths, where Mitsuba integrates the same
+#: measurements over its RGB curves: close, not identical).
+CONDUCTORS = {"Cu": "copper", "Au": "gold"}
+
+#: Triangles per culling group of a mesh.
+GROUP_SIZE = 64
+
+# properties read past on purpose: they do not change the image mcvar computes
+_IGNORED = {
+    "film": {"pixel_format", "component_format", "file_format", "banner", "high_quality_edges",
+             "sample_border"},
+    "sensor": {"near_clip", "far_clip", "shutter_open", "shutter_close"},
+    "sampler": {"seed", "jitter", "scramble_type", "dimension"},
+    "bsdf": {"sample_visible"},
+    "emitter": {"sampling_weight"},
+    "integrator": set(),
+    "shape": set(),
+    "rfilter": set(),
+    "texture": set(),
+}
+
+
+class _Props:
+    """The properties and nested objects of one plugin element, read once each.
+
+    ``get`` records every name it is asked for; :meth:`done` raises for
+    whatever the file gave that the plugin did not read, listing what it
+    reads (never a silent omission).
+    """
+
+    def __init__(self, node: Node, builder: "_Builder"):
+        self.node = node
+        self.values: dict[str, tuple[str, object, Node]] = {}
+        self.objects: list[Node] = []
+        self.asked: list[str] = []
+        for child in node.children:
+            if child.tag == "default" and node.tag == "scene":
+                continue
+            if child.tag == "ref":
+                target = builder.resolve(child)
+                if child.name:
+                    self.values[child.name] = ("object", target, child)
+                else:
+                    self.objects.append(target)
+            elif child.tag in PLUGIN_TAGS:
+                if child.name:
+                    self.values[child.name] = ("object", child, child)
+                else:
+                    self.objects.append(child)
+            elif child.tag in PROPERTY_TAGS:
+                name = child.require("name")
+                if name in self.values:
+                    raise child.error(f"property {name!r} is given twice")
+                self.values[name] = (child.tag, _value(child), child)
+            else:
+                raise child.error(f"<{child.tag}> is not supported inside <{node.tag}>; supported: "
+                                  f"{', '.join(PROPERTY_TAGS + PLUGIN_TAGS)}, ref")
+
+    def get(self, name, kinds, default=None):
+        self.asked.append(name)
+        if name not in self.values:
+            return default
+        kind, value, child = self.values.pop(name)
+        if kind not in kinds:
+            raise child.error(f"property {name!r} must be given as {' or '.join('<' + k + '>' for k in kinds)}")
+        return value
+
+    def child(self, name):
+        """The element that gave property ``name`` (for messages), else the plugin's."""
+        return self.values[name][2] if name in self.values else self.node
+
+    def color(self, name, default):
+        self.asked.append(name)
+        if name not in self.values:
+            return None if default is None else np.broadcast_to(np.asarray(default, dtype=np.float64), 3).copy()
+        kind, value, child = self.values.pop(name)
+        if kind in ("rgb", "spectrum", "float"):
+            return np.broadcast_to(np.asarray(value, dtype=np.float64), 3).copy()
+        if kind == "object" and value.tag == "texture":
+            return value
+        raise child.error(f"{name!r} must be <rgb>, <spectrum value=...>, <float> or a <texture>")
+
+    def objects_of(self, tag):
+        found = [o for o in self.objects if o.tag == tag]
+        self.objects = [o for o in self.objects if o.tag != tag]
+        return found
+
+    def done(self):
+        ignored = _IGNORED.get(self.node.tag, set())
+        for name, (kind, value, child) in self.values.items():
+            if name in ignored:
+                continue
+            raise child.error(f"property {name!r} is not supported by <{self.node.tag} type="
+                              f"{self.node.type!r}>; it reads: {', '.join(self.asked) or 'nothing'}")
+        for obj in self.objects:
+            raise obj.error(f"a nested <{obj.tag}> is not supported inside <{self.node.tag} type="
+                            f"{self.node.type!r}>")
+
+
+def _value(child: Node):
+    tag = child.tag
+    if tag == "float":
+        return parse_float(child)
+    if tag == "integer":
+        text = child.require("value")
+        try:
+            return int(text)
+        except ValueError:
+            raise child.error(f"value={text!r} is not an integer") from None
+    if tag == "boolean":
+        text = child.require("value").strip().lower()
+        if text not in ("true", "false"):
+            raise child.error(f"value={text!r} must be true or false")
+        return text == "true"
+    if tag == "string":
+        return child.require("value")
+    if tag == "rgb":
+        v = parse_numbers(child, child.require("value"), "value", (1, 3))
+        return np.repeat(v, 3) if v.size == 1 else v
+    if tag == "spectrum":
+        if "filename" in child.attrs:
+            raise child.error("spectra from files are not supported: give <rgb> or a constant <spectrum value=...>")
+        text = child.require("value")
+        if ":" in text:
+            raise child.error("sampled spectra (wavelength:value pairs) are not supported: give <rgb> "
+                              "or a constant <spectrum value=...>")
+        return float(parse_numbers(child, text, "value", 1)[0])
+    if tag in ("point", "vector"):
+        return parse_vector(child)
+    if tag == "transform":
+        return parse_transform(child)
+    raise child.error(f"unknown property element <{tag}>")  # pragma: no cover (PROPERTY_TAGS)
+
+
+def _apply(m, points):
+    return points @ m[:3, :3].T + m[:3, 3]
+
+
+def _ior(props: _Props, name, default):
+    value = props.get(name, ("float", "string"), default)
+    if isinstance(value, str):
+        key = value.strip().lower()
+        if key not in IOR:
+            raise props.node.error(f"{name}={value!r} is not a known index of refraction; known: "
+                                   f"{', '.join(IOR)} (or a number)")
+        return IOR[key]
+    if not value > 0:
+        raise props.node.error(f"{name} must be > 0; got {value}")
+    return float(value)
+
+
+class _Builder:
+    def __init__(self, root: Node):
+        self.root = root
+        self.ids: dict[str, Node] = {}
+        self._collect_ids(root)
+        self._building: list[str] = []
+        self.triangles, self.tri_material, self.tri_emission, self.tri_light, self.tri_group = [], [], [], [], []
+        self.spheres, self.sphere_material, self.sphere_emission = [], [], []
+        self.lights: list[tuple] = []
+        self.points: list[tuple] = []
+        self.materials, self.material_names, self._material_of = [], [], {}
+        self.environment = None
+        self.checker = None        # (period, node) of an emitting checkerboard
+        self.camera = None
+        self.defaults = {}
+        self.n_groups = 0
+
+    # ids and references ------------------------------------------------
+    def _collect_ids(self, node):
+        for child in node.children:
+            if child.tag in PLUGIN_TAGS and "id" in child.attrs:
+                key = child.attrs["id"]
+                if key in self.ids:
+                    raise child.error(f"id {key!r} is already used on line {self.ids[key].line}")
+                self.ids[key] = child
+            self._collect_ids(child)
+
+    def resolve(self, ref: Node) -> Node:
+        key = ref.require("id")
+        if key not in self.ids:
+            raise ref.error(f"<ref id={key!r}> names no object (ids: {', '.join(self.ids) or 'none'})")
+        if key in self._building:
+            chain = " -> ".join(self._building[self._building.index(key):] + [key])
+            raise ref.error(f"cyclic <ref>: {chain}")
+        return self.ids[key]
+
+    def props(self, node: Node) -> _Props:
+        key = node.attrs.get("id")
+        if key is not None:
+            self._building.append(key)
+        try:
+            return _Props(node, self)
+        finally:
+            if key is not None:
+                self._building.pop()
+
+    def _check_type(self, node: Node):
+        kind = node.type
+        if kind is None:
+            raise node.error("missing attribute 'type'")
+        if kind not in SUPPORTED[node.tag] and not (node.tag == "texture"):
+            raise node.error(f"<{node.tag} type={kind!r}> is not supported; supported: "
+                             f"{', '.join(SUPPORTED[node.tag])}")
+
+    # the scene ------------------------------------------------------------
+    def build(self):
+        scene_props = self.props(self.root)
+        for node in scene_props.objects:
+            self._check_type(node)
+            if node.tag == "integrator":
+                self.integrator(node)
+            elif node.tag == "sensor":
+                if self.camera is not None:
+                    raise node.error("mcvar renders one sensor; this is the second")
+                self.sensor(node)
+            elif node.tag == "shape":
+                self.shape(node)
+            elif node.tag == "emitter":
+                self.emitter(node, shape=None)
+            elif node.tag in ("bsdf", "texture"):
+                if "id" not in node.attrs:
+                    raise node.error(f"a top-level <{node.tag}> needs an id (it is used through <ref>)")
+            else:
+                raise node.error(f"<{node.tag}> is not supported at the top level; supported: integrator, "
+                                 "sensor, shape, emitter, bsdf, texture, default")
+        for name, (kind, value, child) in scene_props.values.items():
+            if kind == "object":
+                continue
+            raise child.error("a property directly inside <scene> is not supported")
+        for child in self.root.children:
+            if child.tag not in PLUGIN_TAGS + PROPERTY_TAGS + ("default", "ref"):
+                raise child.error(f"<{child.tag}> is not supported; supported at the top level: "
+                                  "integrator, sensor, shape, emitter, bsdf, texture, default")
+        if self.camera is None:
+            raise SceneFileError(f"{self.root.source}: the scene has no <sensor type=\"perspective\">")
+        return self.fields()
+
+    def integrator(self, node):
+        p = self.props(node)
+        depth = p.get("max_depth", ("integer",), -1)
+        rr = p.get("rr_depth", ("integer",), None)
+        hide = p.get("hide_emitters", ("boolean",), False)
+        p.done()
+        if hide:
+            raise node.error("hide_emitters=true is not supported (mcvar's camera sees emitters)")
+        if depth == 0 or depth < -1:
+            raise node.error(f"max_depth must be -1 (no limit) or >= 1; got {depth}")
+        self.defaults["max_depth"] = None if depth == -1 else int(depth)
+        if rr is not None:
+            if rr < 1:
+                raise node.error(f"rr_depth must be >= 1; got {rr}")
+            self.defaults["rr_depth"] = int(rr)
+
+    def sensor(self, node):
+        p = self.props(node)
+        fov = p.get("fov", ("float",), None)
+        axis = p.get("fov_axis", ("string",), "x")
+        to_world = p.get("to_world", ("transform",), np.eye(4))
+        for name in ("focal_length", "principal_point_offset_x", "principal_point_offset_y"):
+            if name in p.values:
+                raise p.child(name).error(f"{name} is not supported: give fov (degrees) and fov_axis")
+        films = p.objects_of("film") + ([p.get("film", ("object",))] if "film" in p.values else [])
+        samplers = p.objects_of("sampler") + ([p.get("sampler", ("object",))] if "sampler" in p.values else [])
+        p.done()
+        width, height = 768, 576                          # Mitsuba's hdrfilm defaults
+        if films:
+            width, height = self.film(films[0])
+        if samplers:
+            self.sampler(samplers[0])
+        if fov is None:
+            raise node.error("missing property 'fov' (<float name=\"fov\" value=\"...\"/>, degrees)")
+        if not 0.0 < fov < 180.0:
+            raise p.child("fov").error(f"fov must lie in (0, 180) degrees; got {fov}")
+        t = math.tan(math.radians(fov) / 2.0)
+        aspect = width / height
+        axes = {"x": 1.0, "y": aspect, "diagonal": width / math.hypot(width, height),
+                "smaller": max(aspect, 1.0), "larger": min(aspect, 1.0)}
+        if axis not in axes:
+            raise node.error(f"fov_axis={axis!r} is not supported; supported: {', '.join(axes)}")
+        if axis == "diagonal":
+            t *= axes["diagonal"]
+        else:
+            t *= axes[axis]
+        fov_x = math.degrees(2.0 * math.atan(t))
+        m = to_world[:3, :3]
+        cols = [m[:, i] for i in range(3)]
+        norms = [np.linalg.norm(c) for c in cols]
+        ortho = max(abs(cols[i] @ cols[j]) for i, j in ((0, 1), (0, 2), (1, 2))) <= 1e-6 * max(norms) ** 2
+        if not (min(norms) > 0 and ortho and max(norms) - min(norms) <= 1e-6 * max(norms)
+                and np.linalg.det(m) > 0):
+            raise node.error("the sensor's to_world must be a rotation (times a uniform scale) and a "
+                             "translation: mcvar's pinhole cannot mirror or shear the image")
+        position = to_world[:3, 3]
+        forward = cols[2] / norms[2]
+        self.camera = dict(position=position, look_at=position + forward, up=cols[1] / norms[1],
+                           fov_deg=fov_x)
+        self.defaults["res"] = (int(width), int(height))
+
+    def film(self, node):
+        self._check_type(node)
+        p = self.props(node)
+        width = p.get("width", ("integer",), 768)
+        height = p.get("height", ("integer",), 576)
+        for name in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height"):
+            if name in p.values:
+                raise p.child(name).error(f"{name} is not supported (mcvar renders the whole film)")
+        filters = p.objects_of("rfilter") + ([p.get("rfilter", ("object",))] if "rfilter" in p.values else [])
+        p.done()
+        if not (width >= 1 and height >= 1):
+            raise node.error(f"width and height must be >= 1; got {width} x {height}")
+        if filters:
+            f = filters[0]
+            if f.type != "box":
+                raise f.error(f"<rfilter type={f.type!r}> is not supported: mcvar's pixels are box "
+                              "filtered (each pixel the mean over its square); use <rfilter type=\"box\"/>")
+            self.props(f).done()
+        else:
+            warnings.warn(f"{node.where()}: no <rfilter>: Mitsuba's default is a Gaussian filter, mcvar's "
+                          "pixels are box filtered (add <rfilter type=\"box\"/> for the same image in both)",
+                          UserWarning, stacklevel=6)
+        return width, height
+
+    def sampler(self, node):
+        self._check_type(node)
+        p = self.props(node)
+        spp = p.get("sample_count", ("integer",), 4)
+        p.done()
+        if not spp >= 1:
+            raise node.error(f"sample_count must be >= 1; got {spp}")
+        self.defaults["spp"] = int(spp)
+
+    # materials ----------------------------------------------------------
+    def material(self, node, emitting=False):
+        """Index into ``materials`` of a <bsdf> node (the same node gives the same index).
+
+        A shape without a <bsdf> gets Mitsuba's default: ``diffuse`` of
+        reflectance 0.5, or 0 (black) when the shape is an area emitter.
+        """
+        if node is None:
+            key = ("default", emitting)
+            if key not in self._material_of:
+                self._material_of[key] = self._add_material(Lambertian(0.0 if emitting else 0.5),
+                                                            "default-black" if emitting else "default-diffuse")
+            return self._material_of[key]
+        key = id(node)
+        if key not in self._material_of:
+            self._check_type(node)
+            bsdf = self.bsdf(node)
+            name = node.attrs.get("id") or f"{node.type}-{node.line}"
+            self._material_of[key] = self._add_material(bsdf, name)
+        return self._material_of[key]
+
+    def _add_material(self, bsdf, name):
+        self.materials.append(bsdf)
+        self.material_names.append(name)
+        return len(self.materials) - 1
+
+    def bsdf(self, node):
+        key = node.attrs.get("id")
+        if key is not None:
+            self._building.append(key)
+        try:
+            return self._bsdf(node)
+        finally:
+            if key is not None:
+                self._building.pop()
+
+    def _bsdf(self, node):
+        self._check_type(node)
+        p = self.props(node)
+        kind = node.type
+        try:
+            if kind == "diffuse":
+                rho = p.color("reflectance", 0.5)
+                p.done()
+                if isinstance(rho, Node):
+                    raise self._texture_error(rho, "diffuse reflectance")
+                return Lambertian(rho)
+            if kind == "twosided":
+                inner = p.objects_of("bsdf") + [v for k, (kk, v, c) in list(p.values.items())
+                                                if kk == "object" and v.tag == "bsdf"]
+                for k in [k for k, (kk, v, c) in p.values.items() if kk == "object" and v.tag == "bsdf"]:
+                    p.values.pop(k)
+                p.done()
+                if len(inner) != 1:
+                    raise node.error(f"twosided needs exactly one nested <bsdf> (mcvar has no different "
+                                     f"back side); got {len(inner)}")
+                if inner[0].type == "twosided":
+                    raise inner[0].error("twosided inside twosided")
+                return self.bsdf(inner[0])
+            if kind in ("conductor", "roughconductor"):
+                return self._conductor(node, p, rough=kind == "roughconductor")
+            if kind == "dielectric":
+                eta = _ior(p, "int_ior", IOR["bk7"]) / _ior(p, "ext_ior", IOR["air"])
+                r = p.color("specular_reflectance", 1.0)
+                t = p.color("specular_transmittance", 1.0)
+                p.done()
+                for v, name in ((r, "specular_reflectance"), (t, "specular_transmittance")):
+                    if isinstance(v, Node):
+                        raise self._texture_error(v, name)
+                return Glass(eta, reflectance=r, transmittance=t)
+            if kind == "plastic":
+                rho = p.color("diffuse_reflectance", 0.5)
+                spec = p.color("specular_reflectance", 1.0)
+                eta = _ior(p, "int_ior", IOR["polypropylene"]) / _ior(p, "ext_ior", IOR["air"])
+                nonlinear = p.get("nonlinear", ("boolean",), False)
+                p.done()
+                for v, name in ((rho, "diffuse_reflectance"), (spec, "specular_reflectance")):
+                    if isinstance(v, Node):
+                        raise self._texture_error(v, name)
+                if not nonlinear:
+                    raise node.error("mcvar's Plastic sums the internal bounces (Mitsuba's nonlinear=true); "
+                                     "add <boolean name=\"nonlinear\" value=\"true\"/> to use it")
+                return Plastic(rho, eta=eta, specular=spec)
+        except SceneFileError:
+            raise
+        except (ValueError, TypeError) as exc:
+            raise node.error(str(exc)) from None
+        raise node.error(f"<bsdf type={kind!r}> is not supported")  # pragma: no cover
+
+    def _conductor(self, node, p, rough):
+        material = p.get("material", ("string",), None)
+        eta = p.color("eta", None)
+        k = p.color("k", None)
+        spec = p.color("specular_reflectance", 1.0)
+        alpha = distribution = None
+        if rough:
+            distribution = p.get("distribution", ("string",), "beckmann")
+            alpha = p.get("alpha", ("float",), None)
+            au = p.get("alpha_u", ("float",), None)
+            av = p.get("alpha_v", ("float",), None)
+            if alpha is None:
+                if (au is None) != (av is None):
+                    raise node.error("give both alpha_u and alpha_v, or alpha")
+                if au is not None and au != av:
+                    raise node.error("anisotropic roughness (alpha_u != alpha_v) is not supported: mcvar's "
+                                     "tangent frames are not Mitsuba's")
+                alpha = 0.1 if au is None else au
+            if distribution not in ("ggx", "beckmann"):
+                raise node.error(f"distribution={distribution!r} is not supported; supported: ggx, beckmann")
+            if not 0.0 < alpha <= 1.0:
+                raise node.error(f"alpha must lie in (0, 1]; got {alpha}")
+        p.done()
+        if isinstance(spec, Node):
+            raise self._texture_error(spec, "specular_reflectance")
+        if (eta is None) != (k is None):
+            raise node.error("give both eta and k, or a material name")
+        if eta is not None and material is not None:
+            raise node.error("give eta and k, or material, not both")
+        if eta is None and material is None:
+            material = "Cr"                           # Mitsuba's default conductor
+        if material == "none":
+            if rough:
+                if not np.allclose(spec, 1.0):
+                    raise node.error("a rough mirror (material none) with specular_reflectance != 1 is not "
+                                     "supported: mcvar's Microfacet tints by Schlick's F0, not by a factor")
+                return Microfacet(alpha, distribution=distribution, reflectance=1.0)
+            return Mirror(spec)
+        if not np.allclose(spec, 1.0):
+            raise node.error("specular_reflectance != 1 on a conductor is not supported (only with "
+                             "material none, the mirror)")
+        if material is not None:
+            if material not in CONDUCTORS:
+                raise node.error(f"conductor material {material!r} is not one mcvar has; supported: none, "
+                                 f"{', '.join(CONDUCTORS)}, or eta and k as <rgb>")
+            if rough:
+                return Conductor.preset(CONDUCTORS[material], alpha_x=alpha, distribution=distribution)
+            return Conductor.preset(CONDUCTORS[material])
+        if isinstance(eta, Node) or isinstance(k, Node):
+            raise node.error("textured eta or k is not supported")
+        if rough:
+            return Conductor(eta, k, alpha_x=alpha, distribution=distribution)
+        return Conductor(eta, k)
+
+    def _texture_error(self, tex: Node, what):
+        if tex.type == "bitmap":
+            return tex.error(f"a bitmap texture as {what} is not supported: mcvar's materials hold one "
+                             "constant albedo per primitive, and a per-hit texture lookup would need the "
+                             "integrator loops (mcvar.integrators) to evaluate it")
+        if tex.type == "checkerboard":
+            return tex.error(f"a checkerboard texture as {what} is not supported: mcvar's only texture is "
+                             "the world-space checker of emitted radiance (Scene.checker_period); use it as "
+                             "an area emitter's radiance")
+        return tex.error(f"<texture type={tex.type!r}> is not supported; supported: checkerboard (as an "
+                         "area emitter's radiance)")
+
+    # shapes ---------------------------------------------------------------
+    def shape(self, node):
+        p = self.props(node)
+        kind = node.type
+        to_world = p.get("to_world", ("transform",), np.eye(4))
+        flip = p.get("flip_normals", ("boolean",), False)
+        face_normals = p.get("face_normals", ("boolean",), False)
+        bsdfs = p.objects_of("bsdf") + [p.get(k, ("object",)) for k in
+                                         [k for k, (kk, v, c) in p.values.items() if kk == "object" and v.tag == "bsdf"]]
+        emitters = p.objects_of("emitter") + [p.get(k, ("object",)) for k in
+                                              [k for k, (kk, v, c) in p.values.items()
+                                               if kk == "object" and v.tag == "emitter"]]
+        if len(bsdfs) > 1:
+            raise bsdfs[1].error("a shape has one <bsdf>")
+        if len(emitters) > 1:
+            raise emitters[1].error("a shape has one <emitter>")
+        if np.linalg.matrix_rank(to_world[:3, :3]) < 3:
+            raise node.error("to_world is singular (a zero scale?)")
+        if kind == "sphere":
+            center = p.get("center", ("point",), np.zeros(3))
+            radius = p.get("radius", ("float",), 1.0)
+            p.done()
+            if not radius > 0:
+                raise node.error(f"radius must be > 0; got {radius}")
+            m = to_world[:3, :3]
+            scales = np.linalg.svd(m, compute_uv=False)
+            if scales.max() - scales.min() > 1e-9 * scales.max():
+                raise node.error("a sphere's to_world must scale uniformly (mcvar's spheres are round)")
+            world_center = _apply(to_world, center[None])[0]
+            world_radius = radius * scales[0]
+            mat = self.material(bsdfs[0] if bsdfs else None, emitting=bool(emitters))
+            emission = np.zeros(3)
+            if emitters:
+                if flip:
+                    raise node.error("an emitting sphere with flip_normals (emitting inwards only) is not "
+                                     "supported: mcvar's spheres emit outwards")
+                emission = self._area_radiance(emitters[0], checker_shape=None)
+            self.spheres.append((world_center, world_radius))
+            self.sphere_material.append(mat)
+            self.sphere_emission.append(emission)
+            return
+        if kind in ("rectangle", "cube", "disk"):
+            p.done()
+            local = {"rectangle": _mesh.rectangle, "cube": _mesh.cube, "disk": _mesh.disk}[kind]()
+        elif kind in ("obj", "ply"):
+            filename = p.get("filename", ("string",), None)
+            p.done()
+            if filename is None:
+                raise node.error("missing property 'filename' (<string name=\"filename\" value=\"...\"/>)")
+            path = Path(filename)
+            if not path.is_absolute():
+                path = node.directory / path
+            if not path.is_file():
+                raise p.child("filename").error(f"mesh file {str(path)!r} does not exist")
+            if path.suffix.lower() != "." + kind:
+                raise node.error(f"<shape type={kind!r}> needs a .{kind} file; got {path.name!r}")
+            try:
+                local = _mesh.read_mesh(path)
+            except _mesh.MeshError as exc:
+                raise node.error(str(exc)) from None
+            if not face_normals:
+                warnings.warn(f"{node.where()}: mcvar shades meshes with face normals; Mitsuba interpolates "
+                              "vertex normals unless <boolean name=\"face_normals\" value=\"true\"/> (the "
+                              "images differ on curved meshes)", UserWarning, stacklevel=5)
+        else:
+            raise node.error(f"<shape type={kind!r}> is not supported; supported: "
+                             f"{', '.join(SUPPORTED['shape'])}")
+        tris = _apply(to_world, local.reshape(-1, 3)).reshape(-1, 3, 3)
+        if kind in ("rectangle", "disk") and np.linalg.det(to_world[:3, :3]) < 0:
+            # Mitsuba's analytic shapes keep the normal to_world gives (0, 0, 1): a mirroring
+            # transform must not turn them inside out
+            tris = tris[:, [0, 2, 1]]
+        if flip:
+            tris = tris[:, [0, 2, 1]]
+        area2 = np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+        keep = area2 > 1e-12 * max(float(np.max(area2, initial=0.0)), 1e-300)
+        if not np.any(keep):
+            raise node.error("the shape has no triangle of positive area")
+        tris = tris[keep]
+        mat = self.material(bsdfs[0] if bsdfs else None, emitting=bool(emitters))
+        n = tris.shape[0]
+        emission = np.zeros((n, 3))
+        light = np.full(n, -1)
+        if emitters:
+            radiance = self._area_radiance(emitters[0], checker_shape=(kind, to_world, flip, node))
+            emission[:] = radiance
+            if np.any(radiance > 0):
+                light = self._parallelogram_lights(tris, radiance)
+        self.triangles.append(tris)
+        self.tri_material.append(np.full(n, mat))
+        self.tri_emission.append(emission)
+        self.tri_light.append(light)
+        self.tri_group.append(self._groups(tris) if kind in ("obj", "ply", "disk") and n > GROUP_SIZE
+                              else np.zeros(n, dtype=np.int64))
+
+    def _groups(self, tris):
+        """Culling groups of ~GROUP_SIZE triangles by recursive median splits of the centroids."""
+        centroid = tris.mean(axis=1)
+        groups = np.zeros(tris.shape[0], dtype=np.int64)
+        stack = [np.arange(tris.shape[0])]
+        while stack:
+            idx = stack.pop()
+            if idx.size <= GROUP_SIZE:
+                self.n_groups += 1
+                groups[idx] = self.n_groups
+                continue
+            c = centroid[idx]
+            axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+            order = idx[np.argsort(c[:, axis], kind="stable")]
+            half = order.size // 2
+            stack += [order[:half], order[half:]]
+        return groups
+
+    def _parallelogram_lights(self, tris, radiance):
+        """Lights for consecutive triangle pairs that form a parallelogram; -1 for the others."""
+        light = np.full(tris.shape[0], -1)
+        k = 0
+        while k + 1 < tris.shape[0]:
+            quad = _as_parallelogram(tris[k], tris[k + 1])
+            if quad is None:
+                k += 1
+                continue
+            origin, e1, e2 = quad
+            light[k] = light[k + 1] = len(self.lights)
+            self.lights.append((origin, e1, e2, radiance))
+            k += 2
+        return light
+
+    def _area_radiance(self, emitter: Node, checker_shape):
+        self._check_type(emitter)
+        if emitter.type != "area":
+            raise emitter.error(f"an emitter inside a shape must be type 'area'; got {emitter.type!r}")
+        p = self.props(emitter)
+        radiance = p.color("radiance", 1.0)
+        p.done()
+        if isinstance(radiance, Node):
+            if radiance.type != "checkerboard":
+                raise self._texture_error(radiance, "radiance")
+            if checker_shape is None or checker_shape[0] != "rectangle":
+                raise radiance.error("a checkerboard radiance is supported on a <shape type=\"rectangle\"> "
+                                     "(mcvar's checker is a world-space pattern on a plane)")
+            return self._checker(radiance, *checker_shape[1:3])
+        if not np.all(radiance >= 0):
+            raise emitter.error(f"radiance must be non-negative; got {radiance.tolist()}")
+        return radiance
+
+    def _checker(self, tex: Node, to_world, flip):
+        """The radiance of an emitting checkerboard rectangle, if it is mcvar's checker.
+
+        mcvar's checker (``Scene.checker_period = p``) multiplies emission by
+        ``(floor(x / p) + floor(z / p)) mod 2`` of the world hit point.
+        Mitsuba's paints ``color0`` where ``floor(2 u') + floor(2 v')`` is odd
+        and ``color1`` elsewhere, ``(u', v') = to_uv (u, v)``, and a
+        rectangle's ``(u, v) = ((x_l + 1) / 2, (y_l + 1) / 2)`` of its local
+        point. They agree when the rectangle lies in a plane y = const, its
+        ``2 (u', v')`` are ``(+-x / p, +-z / p)`` (in either order) plus
+        integers, and one colour is black: checked here exactly on the
+        affine maps, so anything else is an error rather than a different
+        picture.
+        """
+        p = self.props(tex)
+        c0 = p.color("color0", 0.4)
+        c1 = p.color("color1", 0.2)
+        to_uv = p.get("to_uv", ("transform",), np.eye(4))
+        p.done()
+        if isinstance(c0, Node) or isinstance(c1, Node):
+            raise tex.error("nested textures in a checkerboard are not supported")
+        # world (x, z) -> local (x_l, y_l): the rectangle's plane must be y = const
+        m = to_world[:3, :3]
+        if abs(m[1, 0]) > 1e-12 * np.abs(m).max() or abs(m[1, 1]) > 1e-12 * np.abs(m).max():
+            raise tex.error("a checkerboard radiance needs its rectangle in a plane y = const (mcvar's checker "
+                            "is a pattern in world x and z)")
+        # (u, v) = A_l (x_l, y_l) + b_l, (x, z) = A_w (x_l, y_l) + t_w
+        a_w = m[[0, 2]][:, :2]
+        t_w = to_world[[0, 2], 3]
+        uv = np.array([[0.5, 0.0], [0.0, 0.5]]), np.array([0.5, 0.5])
+        # Mitsuba keeps the 2D affine part of to_uv: rows/columns 0, 1 and the translation
+        s = to_uv[np.ix_([0, 1], [0, 1])]
+        s_t = to_uv[[0, 1], 3]
+        # 2 (u', v') = 2 (S (A_l l + b_l) + s_t) with l = A_w^-1 ((x, z) - t_w): = G (x, z) + h
+        inv = np.linalg.inv(a_w)
+        g = 2.0 * s @ uv[0] @ inv
+        h = 2.0 * (s @ (uv[0] @ (-inv @ t_w) + uv[1]) + s_t)
+        diag = abs(g[0, 1]) < 1e-9 * np.abs(g).max() and abs(g[1, 0]) < 1e-9 * np.abs(g).max()
+        anti = abs(g[0, 0]) < 1e-9 * np.abs(g).max() and abs(g[1, 1]) < 1e-9 * np.abs(g).max()
+        if not (diag or anti):
+            raise tex.error("the checkerboard's squares must be aligned with world x and z")
+        scales = np.abs(g[[0, 1], [0, 1]] if diag else g[[0, 1], [1, 0]])
+        if abs(scales[0] - scales[1]) > 1e-9 * scales.max():
+            raise tex.error("the checkerboard's squares must be square in world x and z")
+        period = 1.0 / scales[0]
+        if np.any(np.abs(h - np.round(h)) > 1e-6):
+            raise tex.error(f"the checkerboard's squares must start on multiples of their side {period:g} "
+                            "in world x and z (mcvar's checker has its corner at the origin)")
+        # parity shift: integer offsets, plus one per mirrored axis (floor(-s) = -floor(s) - 1)
+        signs = np.sign(g[[0, 1], [0, 1]] if diag else g[[0, 1], [1, 0]])
+        shift = int(np.round(h).sum()) + int(np.sum(signs < 0))
+        lit, dark = (c0, c1) if shift % 2 == 0 else (c1, c0)
+        if np.any(dark != 0):
+            raise tex.error("one of the checkerboard's colours must be black (mcvar's checker switches "
+                            f"emission on and off); here the squares mcvar leaves dark would be {dark.tolist()}")
+        if self.checker is not None and abs(self.checker - period) > 1e-9 * period:
+            raise tex.error("every checkerboard emitter of a scene must have the same squares")
+        self.checker = period
+        return lit
+
+    # emitters ---------------------------------------------------------------
+    def emitter(self, node, shape):
+        p = self.props(node)
+        kind = node.type
+        if kind == "area":
+            raise node.error("an area emitter must be nested in a <shape>")
+        if kind == "point":
+            position = p.get("position", ("point",), None)
+            to_world = p.get("to_world", ("transform",), None)
+            intensity = p.color("intensity", 1.0)
+            p.done()
+            if isinstance(intensity, Node):
+                raise self._texture_error(intensity, "intensity")
+            if position is None:
+                position = np.zeros(3) if to_world is None else to_world[:3, 3]
+            elif to_world is not None:
+                raise node.error("give position or to_world, not both")
+            if not np.all(intensity >= 0):
+                raise node.error("intensity must be non-negative")
+            self.points.append((position, intensity))
+            return
+        if self.environment is not None:
+            raise node.error("mcvar has one environment emitter; this is the second")
+        if kind == "constant":
+            radiance = p.color("radiance", 1.0)
+            p.done()
+            if isinstance(radiance, Node):
+                raise self._texture_error(radiance, "radiance")
+            if not np.all(radiance >= 0):
+                raise node.error("radiance must be non-negative")
+            self.environment = constant(radiance)
+            return
+        if kind == "envmap":
+            filename = p.get("filename", ("string",), None)
+            scale = p.get("scale", ("float",), 1.0)
+            to_world = p.get("to_world", ("transform",), np.eye(4))
+            p.done()
+            if filename is None:
+                raise node.error("missing property 'filename'")
+            path = Path(filename)
+            if not path.is_absolute():
+                path = node.directory / path
+            if not path.is_file():
+                raise node.error(f"environment image {str(path)!r} does not exist")
+            try:
+                image = read_image(path)
+            except (ValueError, OSError) as exc:
+                raise node.error(f"cannot read the environment image: {exc}") from None
+            self.environment = EnvironmentMap(envmap_to_mcvar(image, to_world, node) * scale)
+            return
+        raise node.error(f"<emitter type={kind!r}> is not supported")  # pragma: no cover
+
+    # the fields ---------------------------------------------------------------
+    def fields(self):
+        tris = np.concatenate(self.triangles) if self.triangles else np.zeros((0, 3, 3))
+        n_tri, n_sph = tris.shape[0], len(self.spheres)
+        cat = (lambda parts, shape, dtype=np.float64:
+               np.concatenate(parts) if parts else np.zeros(shape, dtype=dtype))
+        emission = np.concatenate([cat(self.tri_emission, (0, 3)),
+                                   np.array(self.sphere_emission, dtype=np.float64).reshape(-1, 3)])
+        prim_light = np.concatenate([cat(self.tri_light, (0,), np.int64), np.full(n_sph, -1)])
+        lights = np.array([np.concatenate(light) for light in self.lights]).reshape(-1, 12)
+        points = np.array([np.concatenate(pt) for pt in self.points]).reshape(-1, 6)
+        geometry = [tris.reshape(-1, 3)] + [c[None] + np.array([[r], [-r]]) for c, r in self.spheres]
+        pts = np.concatenate(geometry) if n_tri + n_sph else np.zeros((1, 3))
+        finite = np.all(np.isfinite(pts), axis=1)
+        extent = float(np.linalg.norm(np.ptp(pts[finite], axis=0))) if finite.any() else 1.0
+        return dict(
+            triangles=tris,
+            sphere_centers=np.array([c for c, _ in self.spheres], dtype=np.float64).reshape(-1, 3),
+            sphere_radii=np.array([r for _, r in self.spheres], dtype=np.float64),
+            prim_material=np.concatenate([cat(self.tri_material, (0,), np.int64),
+                                          np.array(self.sphere_material, dtype=np.int64)]),
+            prim_emission=emission,
+            prim_two_sided_emission=np.zeros(n_tri + n_sph, dtype=bool),
+            prim_light=prim_light,
+            prim_group=np.concatenate([cat(self.tri_group, (0,), np.int64), np.zeros(n_sph, dtype=np.int64)]),
+            materials=tuple(self.materials) if self.materials else (Lambertian(0.5),),
+            material_names=tuple(self.material_names) if self.materials else ("default-diffuse",),
+            light_origin=lights[:, 0:3], light_edge1=lights[:, 3:6], light_edge2=lights[:, 6:9],
+            light_radiance=lights[:, 9:12],
+            point_light_position=points[:, 0:3], point_light_intensity=points[:, 3:6],
+            environment=self.environment,
+            checker_period=self.checker,
+            ray_epsilon=max(1e-5 * extent, 1e-7),
+            camera=self.camera,
+            render_defaults=dict(self.defaults),
+        )
+
+
+def _as_parallelogram(a, b, tol=1e-9):
+    """``(origin, e1, e2)`` if triangles ``a`` and ``b`` share an edge and together form a
+    parallelogram, with ``cross(e1, e2)`` along ``a``'s normal; else None."""
+    shared = [(i, j) for i in range(3) for j in range(3) if np.allclose(a[i], b[j], rtol=0, atol=tol * (1 + np.abs(a).max()))]
+    if len(shared) != 2:
+        return None
+    (i0, j0), (i1, j1) = shared
+    x = a[3 - i0 - i1]
+    y = b[3 - j0 - j1]
+    s, t = a[i0], a[i1]
+    scale = 1.0 + max(np.abs(a).max(), np.abs(b).max())
+    if not np.allclose(x + y, s + t, rtol=0, atol=tol * scale):
+        return None
+    e1, e2 = s - x, t - x
+    n_a = np.cross(a[1] - a[0], a[2] - a[0])
+    n_b = np.cross(b[1] - b[0], b[2] - b[0])
+    if n_a @ n_b <= 0:
+        return None                                   # the two triangles face different ways
+    if np.cross(e1, e2) @ n_a < 0:
+        e1, e2 = e2, e1
+    return x.copy(), e1, e2
+
+
+def envmap_to_mcvar(image, to_world, node: Node):
+    """A Mitsuba ``envmap`` image as mcvar's lat-long image (same directions, same radiance).
+
+    Mitsuba looks a world direction ``d`` up at ``u = atan2(x, -z) / (2 pi)``,
+    ``v = acos(y) / pi`` of ``to_world^-1 d``; mcvar at ``phi = atan2(z, x)``
+    (column ``phi W / (2 pi)``), theta from +y. Both have row 0 at +y and
+    azimuth growing the same way, so for a ``to_world`` that rotates about
+    +y by ``alpha`` mcvar's column ``j`` is Mitsuba's column
+    ``j + W / 4 + W alpha / (2 pi)`` (mod W): an exact column roll when
+    that is an integer; anything else is an error.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    width = img.shape[1]
+    m = to_world[:3, :3]
+    alpha = math.atan2(m[0, 2], m[0, 0])
+    expected = np.array([[math.cos(alpha), 0.0, math.sin(alpha)], [0.0, 1.0, 0.0],
+                         [-math.sin(alpha), 0.0, math.cos(alpha)]])
+    if not np.allclose(m, expected, atol=1e-9):
+        raise node.error("an envmap's to_world must be a rotation about +y (mcvar's environment is "
+                         "oriented with +y up)")
+    shift = width / 4.0 + width * alpha / (2.0 * math.pi)
+    if abs(shift - round(shift)) > 1e-6:
+        raise node.error(f"the envmap's rotation about +y must move it by whole columns: width {width} "
+                         f"and angle {math.degrees(alpha):g} deg give a shift of {shift:g} columns")
+    return np.roll(img, -int(round(shift)) % width, axis=1)
+
+
+def scene_fields(root: Node) -> dict:
+    """The fields of a :class:`mcvar.scene.Scene` for the parsed file ``root``.
+
+    ``camera`` is a dict of :class:`mcvar.scene.Camera` arguments and
+    ``render_defaults`` holds what the file says about rendering: ``res``
+    (film width, height), ``spp`` (sampler sample_count), ``max_depth``
+    (None for Mitsuba's -1) and ``rr_depth`` when given.
+    """
+    return _Builder(root).build()
