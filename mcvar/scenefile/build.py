@@ -231,10 +231,13 @@ class _Builder:
         self.points: list[tuple] = []
         self.materials, self.material_names, self._material_of = [], [], {}
         self.environment = None
-        self.checker = None        # (period, node) of an emitting checkerboard
+        self.checker = None        # the period of an emitting checkerboard
+        self.plain_emitters = []   # area emitters of constant radiance (mcvar's checker would pattern them)
         self.camera = None
         self.defaults = {}
         self.n_groups = 0
+        self.inward = []           # (sphere index, node) of spheres emitting inwards (flip_normals)
+        self.two_sided_spheres = set()
 
     # ids and references ------------------------------------------------
     def _collect_ids(self, node):
@@ -304,6 +307,11 @@ class _Builder:
                                   "integrator, sensor, shape, emitter, bsdf, texture, default")
         if self.camera is None:
             raise SceneFileError(f"{self.root.source}: the scene has no <sensor type=\"perspective\">")
+        if self.checker is not None and self.plain_emitters:
+            raise self.plain_emitters[0].error(
+                "mcvar's checker patterns every emitter of a scene: a checkerboard emitter cannot sit beside "
+                "an emitter of constant radiance")
+        self._check_inward_spheres()
         return self.fields()
 
     def integrator(self, node):
@@ -588,10 +596,9 @@ class _Builder:
             mat = self.material(bsdfs[0] if bsdfs else None, emitting=bool(emitters))
             emission = np.zeros(3)
             if emitters:
-                if flip:
-                    raise node.error("an emitting sphere with flip_normals (emitting inwards only) is not "
-                                     "supported: mcvar's spheres emit outwards")
                 emission = self._area_radiance(emitters[0], checker_shape=None)
+                if flip and np.any(emission > 0):
+                    self.inward.append((len(self.spheres), node))
             self.spheres.append((world_center, world_radius))
             self.sphere_material.append(mat)
             self.sphere_emission.append(emission)
@@ -599,6 +606,8 @@ class _Builder:
         if kind in ("rectangle", "cube", "disk"):
             p.done()
             local = {"rectangle": _mesh.rectangle, "cube": _mesh.cube, "disk": _mesh.disk}[kind]()
+            # Mitsuba's rectangle: (u, v) = ((x + 1) / 2, (y + 1) / 2) of the local point
+            local_uv = 0.5 * (local[..., :2] + 1.0) if kind == "rectangle" else None
         elif kind in ("obj", "ply"):
             filename = p.get("filename", ("string",), None)
             p.done()
@@ -612,7 +621,10 @@ class _Builder:
             if path.suffix.lower() != "." + kind:
                 raise node.error(f"<shape type={kind!r}> needs a .{kind} file; got {path.name!r}")
             try:
-                local = _mesh.read_mesh(path)
+                if kind == "ply":
+                    local, local_uv = _mesh.read_ply(path, uv=True)
+                else:
+                    local, local_uv = _mesh.read_obj(path), None
             except _mesh.MeshError as exc:
                 raise node.error(str(exc)) from None
             if not face_normals:
@@ -634,12 +646,19 @@ class _Builder:
         if not np.any(keep):
             raise node.error("the shape has no triangle of positive area")
         tris = tris[keep]
+        uv_tris = None
+        if local_uv is not None:
+            uv_tris = local_uv[keep]
+            if kind in ("rectangle", "disk") and np.linalg.det(to_world[:3, :3]) < 0:
+                uv_tris = uv_tris[:, [0, 2, 1]]
+            if flip:
+                uv_tris = uv_tris[:, [0, 2, 1]]
         mat = self.material(bsdfs[0] if bsdfs else None, emitting=bool(emitters))
         n = tris.shape[0]
         emission = np.zeros((n, 3))
         light = np.full(n, -1)
         if emitters:
-            radiance = self._area_radiance(emitters[0], checker_shape=(kind, to_world, flip, node))
+            radiance = self._area_radiance(emitters[0], checker_shape=(kind, tris, uv_tris))
             emission[:] = radiance
             if np.any(radiance > 0):
                 light = self._parallelogram_lights(tris, radiance)
@@ -649,6 +668,22 @@ class _Builder:
         self.tri_light.append(light)
         self.tri_group.append(self._groups(tris) if kind in ("obj", "ply", "disk") and n > GROUP_SIZE
                               else np.zeros(n, dtype=np.int64))
+
+    def _check_inward_spheres(self):
+        """A sphere that emits inwards (Mitsuba: area emitter and flip_normals) is mcvar's
+        two-sided emitting sphere when nothing outside it can see it: the camera, every
+        other shape and every point light inside it, and no environment."""
+        for k, node in self.inward:
+            c, r = self.spheres[k]
+            pts = [np.asarray(self.camera["position"])[None]] + [t.reshape(-1, 3) for t in self.triangles]
+            pts += [np.asarray(pt[0])[None] for pt in self.points]
+            inside = all(np.all(np.linalg.norm(q - c, axis=1) < r) for q in pts)
+            inside &= all(np.linalg.norm(c2 - c) + r2 < r for j, (c2, r2) in enumerate(self.spheres) if j != k)
+            if not inside or self.environment is not None:
+                raise node.error("a sphere emitting inwards (area emitter with flip_normals) is supported when "
+                                 "everything else is inside it (mcvar then emits on both sides); here something "
+                                 "outside could see its outside")
+            self.two_sided_spheres.add(k)
 
     def _groups(self, tris):
         """Culling groups of ~GROUP_SIZE triangles by recursive median splits of the centroids."""
@@ -693,27 +728,29 @@ class _Builder:
         if isinstance(radiance, Node):
             if radiance.type != "checkerboard":
                 raise self._texture_error(radiance, "radiance")
-            if checker_shape is None or checker_shape[0] != "rectangle":
-                raise radiance.error("a checkerboard radiance is supported on a <shape type=\"rectangle\"> "
-                                     "(mcvar's checker is a world-space pattern on a plane)")
-            return self._checker(radiance, *checker_shape[1:3])
+            if checker_shape is None or checker_shape[2] is None:
+                raise radiance.error("a checkerboard radiance is supported on a rectangle or a PLY mesh with "
+                                     "texture coordinates (u, v) (mcvar's checker is a pattern in world x, z)")
+            return self._checker(radiance, checker_shape[1], checker_shape[2])
         if not np.all(radiance >= 0):
             raise emitter.error(f"radiance must be non-negative; got {radiance.tolist()}")
+        if np.any(radiance > 0):
+            self.plain_emitters.append(emitter)
         return radiance
 
-    def _checker(self, tex: Node, to_world, flip):
-        """The radiance of an emitting checkerboard rectangle, if it is mcvar's checker.
+    def _checker(self, tex: Node, tris, uv):
+        """The radiance of an emitting checkerboard shape, if it is mcvar's checker.
 
         mcvar's checker (``Scene.checker_period = p``) multiplies emission by
         ``(floor(x / p) + floor(z / p)) mod 2`` of the world hit point.
-        Mitsuba's paints ``color0`` where ``floor(2 u') + floor(2 v')`` is odd
-        and ``color1`` elsewhere, ``(u', v') = to_uv (u, v)``, and a
-        rectangle's ``(u, v) = ((x_l + 1) / 2, (y_l + 1) / 2)`` of its local
-        point. They agree when the rectangle lies in a plane y = const, its
-        ``2 (u', v')`` are ``(+-x / p, +-z / p)`` (in either order) plus
-        integers, and one colour is black: checked here exactly on the
-        affine maps, so anything else is an error rather than a different
-        picture.
+        Mitsuba 3's paints ``color1`` where ``floor(2 u') + floor(2 v')`` is
+        odd and ``color0`` elsewhere (measured with ``Texture.eval``),
+        ``(u', v') = to_uv (u, v)``. Texture coordinates are interpolated
+        linearly across each triangle, so the two agree when every vertex has
+        ``2 (u', v') = G (x, z) + h`` for one ``G`` that is ``+-1 / p`` times
+        a permutation, ``h`` integer, and one colour is black: checked here
+        on the vertices (a least-squares fit that must be exact), so
+        anything else is an error rather than a different picture.
         """
         p = self.props(tex)
         c0 = p.color("color0", 0.4)
@@ -722,37 +759,31 @@ class _Builder:
         p.done()
         if isinstance(c0, Node) or isinstance(c1, Node):
             raise tex.error("nested textures in a checkerboard are not supported")
-        # world (x, z) -> local (x_l, y_l): the rectangle's plane must be y = const
-        m = to_world[:3, :3]
-        if abs(m[1, 0]) > 1e-12 * np.abs(m).max() or abs(m[1, 1]) > 1e-12 * np.abs(m).max():
-            raise tex.error("a checkerboard radiance needs its rectangle in a plane y = const (mcvar's checker "
-                            "is a pattern in world x and z)")
-        # (u, v) = A_l (x_l, y_l) + b_l, (x, z) = A_w (x_l, y_l) + t_w
-        a_w = m[[0, 2]][:, :2]
-        t_w = to_world[[0, 2], 3]
-        uv = np.array([[0.5, 0.0], [0.0, 0.5]]), np.array([0.5, 0.5])
         # Mitsuba keeps the 2D affine part of to_uv: rows/columns 0, 1 and the translation
-        s = to_uv[np.ix_([0, 1], [0, 1])]
-        s_t = to_uv[[0, 1], 3]
-        # 2 (u', v') = 2 (S (A_l l + b_l) + s_t) with l = A_w^-1 ((x, z) - t_w): = G (x, z) + h
-        inv = np.linalg.inv(a_w)
-        g = 2.0 * s @ uv[0] @ inv
-        h = 2.0 * (s @ (uv[0] @ (-inv @ t_w) + uv[1]) + s_t)
-        diag = abs(g[0, 1]) < 1e-9 * np.abs(g).max() and abs(g[1, 0]) < 1e-9 * np.abs(g).max()
-        anti = abs(g[0, 0]) < 1e-9 * np.abs(g).max() and abs(g[1, 1]) < 1e-9 * np.abs(g).max()
+        uvp = uv.reshape(-1, 2) @ to_uv[np.ix_([0, 1], [0, 1])].T + to_uv[[0, 1], 3]
+        xz = tris.reshape(-1, 3)[:, [0, 2]]
+        design = np.column_stack([xz, np.ones(len(xz))])
+        coef, *_ = np.linalg.lstsq(design, 2.0 * uvp, rcond=None)
+        scale = max(np.abs(2.0 * uvp).max(), 1.0)
+        if np.abs(design @ coef - 2.0 * uvp).max() > 1e-6 * scale:
+            raise tex.error("the checkerboard's texture coordinates must be an affine function of world x "
+                            "and z (mcvar's checker is a pattern in world x and z)")
+        g, h = coef[:2].T, coef[2]
+        big = np.abs(g).max()
+        diag = abs(g[0, 1]) < 1e-9 * big and abs(g[1, 0]) < 1e-9 * big
+        anti = abs(g[0, 0]) < 1e-9 * big and abs(g[1, 1]) < 1e-9 * big
         if not (diag or anti):
             raise tex.error("the checkerboard's squares must be aligned with world x and z")
-        scales = np.abs(g[[0, 1], [0, 1]] if diag else g[[0, 1], [1, 0]])
-        if abs(scales[0] - scales[1]) > 1e-9 * scales.max():
+        entries = g[[0, 1], [0, 1]] if diag else g[[0, 1], [1, 0]]
+        if abs(abs(entries[0]) - abs(entries[1])) > 1e-9 * big:
             raise tex.error("the checkerboard's squares must be square in world x and z")
-        period = 1.0 / scales[0]
+        period = 1.0 / abs(entries[0])
         if np.any(np.abs(h - np.round(h)) > 1e-6):
             raise tex.error(f"the checkerboard's squares must start on multiples of their side {period:g} "
                             "in world x and z (mcvar's checker has its corner at the origin)")
-        # parity shift: integer offsets, plus one per mirrored axis (floor(-s) = -floor(s) - 1)
-        signs = np.sign(g[[0, 1], [0, 1]] if diag else g[[0, 1], [1, 0]])
-        shift = int(np.round(h).sum()) + int(np.sum(signs < 0))
-        lit, dark = (c0, c1) if shift % 2 == 0 else (c1, c0)
+        # parity: the integer offsets, plus one per mirrored axis (floor(-s) = -floor(s) - 1)
+        shift = int(np.round(h).sum()) + int(np.sum(entries < 0))
+        lit, dark = (c1, c0) if shift % 2 == 0 else (c0, c1)
         if np.any(dark != 0):
             raise tex.error("one of the checkerboard's colours must be black (mcvar's checker switches "
                             f"emission on and off); here the squares mcvar leaves dark would be {dark.tolist()}")
@@ -809,7 +840,7 @@ class _Builder:
                 image = read_image(path)
             except (ValueError, OSError) as exc:
                 raise node.error(f"cannot read the environment image: {exc}") from None
-            self.environment = EnvironmentMap(envmap_to_mcvar(image, to_world, node) * scale)
+            self.environment = EnvironmentMap(envmap_to_mcvar(_unrefine(image), to_world, node) * scale)
             return
         raise node.error(f"<emitter type={kind!r}> is not supported")  # pragma: no cover
 
@@ -835,7 +866,8 @@ class _Builder:
             prim_material=np.concatenate([cat(self.tri_material, (0,), np.int64),
                                           np.array(self.sphere_material, dtype=np.int64)]),
             prim_emission=emission,
-            prim_two_sided_emission=np.zeros(n_tri + n_sph, dtype=bool),
+            prim_two_sided_emission=np.concatenate([np.zeros(n_tri, dtype=bool),
+                                                    [k in self.two_sided_spheres for k in range(n_sph)]]).astype(bool),
             prim_light=prim_light,
             prim_group=np.concatenate([cat(self.tri_group, (0,), np.int64), np.zeros(n_sph, dtype=np.int64)]),
             materials=tuple(self.materials) if self.materials else (Lambertian(0.5),),
@@ -854,6 +886,13 @@ class _Builder:
 def _as_parallelogram(a, b, tol=1e-9):
     """``(origin, e1, e2)`` if triangles ``a`` and ``b`` share an edge and together form a
     parallelogram, with ``cross(e1, e2)`` along ``a``'s normal; else None."""
+    atol = tol * (1.0 + max(np.abs(a).max(), np.abs(b).max()))
+    if np.allclose(a[0], b[0], rtol=0, atol=atol) and np.allclose(a[2], b[1], rtol=0, atol=atol):
+        # the split (v0, v1, v2), (v0, v2, v3) of mcvar's builders: origin v0, edges v1 - v0, v3 - v0
+        v0, v1, v2, v3 = a[0], a[1], a[2], b[2]
+        if np.allclose(v1 + v3, v0 + v2, rtol=0, atol=atol) and \
+                np.cross(v1 - v0, v2 - v0) @ np.cross(v2 - v0, v3 - v0) > 0:
+            return v0.copy(), v1 - v0, v3 - v0
     shared = [(i, j) for i in range(3) for j in range(3) if np.allclose(a[i], b[j], rtol=0, atol=tol * (1 + np.abs(a).max()))]
     if len(shared) != 2:
         return None
@@ -872,6 +911,40 @@ def _as_parallelogram(a, b, tol=1e-9):
     if np.cross(e1, e2) @ n_a < 0:
         e1, e2 = e2, e1
     return x.copy(), e1, e2
+
+
+def _unrefine(image):
+    """mcvar's lat-long image back from the refined bitmap ``mcvar.interop.mitsuba`` writes, or ``image``.
+
+    The exporter writes a map of ``H x W`` pixels as ``(k H + 1) x k W``
+    texels: every pixel's column repeated ``k`` times, rows repeated ``k - 1``
+    times with the mean of the two neighbouring rows on each edge, so that
+    Mitsuba's bilinear lookup integrates like mcvar's nearest one. That
+    layout is recognised exactly (to float32 rounding) and undone; any other
+    image is used as it is (Mitsuba interpolates it bilinearly, mcvar looks
+    it up nearest: the same integral over each pixel, not the same values).
+    """
+    img = np.asarray(image, dtype=np.float64)
+    hh, ww = img.shape[:2]
+    for k in range(min(ww, hh - 1), 1, -1):
+        if ww % k or (hh - 1) % k:
+            continue
+        h, w = (hh - 1) // k, ww // k
+        base = img[1::k][:h]                                    # the first inside row of each pixel row
+        cols = base[:, ::k]
+        tol = 1e-6 * max(np.abs(img).max(), 1e-30)
+        if not np.allclose(np.repeat(cols, k, axis=1), base, rtol=0, atol=tol):
+            continue
+        node = np.arange(hh)
+        inside = node % k != 0
+        fine = np.repeat(cols, k, axis=1)
+        if not np.allclose(img[inside], fine[node[inside] // k], rtol=0, atol=tol):
+            continue
+        edge = node[~inside] // k
+        mean = 0.5 * (fine[np.clip(edge - 1, 0, h - 1)] + fine[np.clip(edge, 0, h - 1)])
+        if np.allclose(img[~inside], mean, rtol=0, atol=tol):
+            return cols
+    return img
 
 
 def envmap_to_mcvar(image, to_world, node: Node):

@@ -197,8 +197,16 @@ def _ply_header(data: bytes, path: Path):
     return fmt, elements, body
 
 
-def read_ply(path) -> np.ndarray:
-    """Triangles ``(T, 3, 3)`` of a PLY file (see the module docstring); polygons fan-triangulated."""
+_UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+
+
+def read_ply(path, *, uv: bool = False):
+    """Triangles ``(T, 3, 3)`` of a PLY file (see the module docstring); polygons fan-triangulated.
+
+    With ``uv=True`` returns ``(triangles, uv)``, ``uv`` of shape ``(T, 3, 2)``
+    from the vertex properties ``u, v`` (or ``s, t``, ``texture_u,
+    texture_v``), None when the file has none.
+    """
     path = Path(path)
     data = _read_bytes(path)
     fmt, elements, body = _ply_header(data, path)
@@ -227,13 +235,16 @@ def read_ply(path) -> np.ndarray:
         col = {p[0]: i for i, p in enumerate(vprops)}
         _need_xyz(col, path)
         verts = np.array([[r[col["x"]], r[col["y"]], r[col["z"]]] for r in vrows], dtype=np.float64)
+        names = next((pair for pair in _UV_NAMES if set(pair) <= set(col)), None)
+        coords = None if names is None else np.array([[r[col[names[0]]], r[col[names[1]]]] for r in vrows],
+                                                     dtype=np.float64)
         fprops, frows = parsed["face"]
         fcol = _face_column(fprops, path)
         polys = [[int(i) for i in r[fcol]] for r in frows]
     else:
         order = "<" if fmt == "binary_little_endian" else ">"
         pos = body
-        verts = polys = None
+        verts = polys = coords = None
         for name, count, props in elements:
             if all(p[1] is None for p in props):
                 dtype = np.dtype([(p[0], order + p[2]) for p in props])
@@ -245,6 +256,9 @@ def read_ply(path) -> np.ndarray:
                 if name == "vertex":
                     _need_xyz(arr.dtype.names, path)
                     verts = np.stack([arr["x"], arr["y"], arr["z"]], axis=1).astype(np.float64)
+                    names = next((pair for pair in _UV_NAMES if set(pair) <= set(arr.dtype.names)), None)
+                    if names is not None:
+                        coords = np.stack([arr[names[0]], arr[names[1]]], axis=1).astype(np.float64)
             else:
                 rows, pos = _binary_lists(data, pos, count, props, order, path, name)
                 if name == "face":
@@ -260,7 +274,10 @@ def read_ply(path) -> np.ndarray:
         faces.extend((poly[0], poly[i], poly[i + 1]) for i in range(1, len(poly) - 1))
     if not faces:
         raise MeshError(f"{path}: no faces")
-    return verts[np.asarray(faces, dtype=np.int64)]
+    index = np.asarray(faces, dtype=np.int64)
+    if uv:
+        return verts[index], (None if coords is None else coords[index])
+    return verts[index]
 
 
 def _binary_lists(data, pos, count, props, order, path, name):
