@@ -18,7 +18,7 @@ LAYERS = {
     "examples": 4,
     "scene": 4, "tracer": 4,
     "mcmc": 4,
-    "integrators": 5,
+    "integrators": 5, "interop": 5,
     "experiments": 6, "adaptive": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "chart_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
@@ -32,7 +32,8 @@ PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
-    "scenefile": ["xml", "mesh", "build", "__init__"],
+    "scenefile": ["xml", "mesh", "build", "write", "__init__"],
+    "interop": ["mitsuba", "__init__"],
     "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "light", "bdpt", "pssmlt", "radiosity", "photon", "sppm", "driver", "__init__"],
 }
 
