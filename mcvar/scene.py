@@ -55,6 +55,7 @@ __all__ = [
     "Scene",
     "SCENES",
     "load_scene",
+    "save_scene",
     "cornell_scene",
     "cornell_spheres_scene",
     "cornell_point_scene",
@@ -919,6 +920,89 @@ def _scene_from_fields(fields: dict) -> Scene:
     fields = dict(fields)
     fields["camera"] = Camera(**fields["camera"])
     return Scene(**fields)
+
+
+def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_depth=None):
+    """Write ``scene`` as a Mitsuba 3 XML file that :func:`load_scene` and Mitsuba 3 both read.
+
+    Parameters
+    ----------
+    scene : Scene
+    path : str or path
+        The ``.xml`` file. Triangle meshes (PLY) and environment images (EXR)
+        go into the folder ``<stem>/`` beside it, named by their content, and
+        the file refers to them by relative names (move the two together).
+    res, spp, max_depth : optional
+        The film size, the sampler's sample count and the path depth the
+        file asks for; default ``scene.render_defaults`` (else 64 x 64, 16
+        spp, no depth limit). ``rr_depth`` is written when the defaults have
+        it.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Notes
+    -----
+    One mapping from Scene to Mitsuba: the dictionary of
+    :func:`mcvar.interop.mitsuba.to_mitsuba` (which refuses, with a
+    ``ValueError`` naming it, whatever has no Mitsuba counterpart of the same
+    model), written by :func:`mcvar.scenefile.write_xml`; the camera as a
+    ``lookat`` of ``scene.camera`` (exact, where a matrix would be rounded to
+    float32). ``ray_epsilon`` and the description travel in a ``<!-- mcvar
+    ... -->`` comment that Mitsuba ignores. ``load_scene(save_scene(s))``
+    renders the same image as ``s`` with the same seed (tests/test_scenefile.py).
+    Needs Mitsuba 3 installed (``mcvar[mitsuba]``): the exporter builds its
+    transforms with it.
+    """
+    from pathlib import Path
+
+    # save_scene is the one function of this module above layer 4: it writes through the
+    # exporter of mcvar.interop (layer 5), imported here, when called (tests/test_layering.py)
+    from .interop.mitsuba import to_mitsuba
+    from .scenefile import LookAt, Rotate, write_xml
+
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a mcvar.scene.Scene; got {type(scene).__name__}")
+    path = Path(path)
+    if path.suffix.lower() != ".xml":
+        raise ValueError(f"path must name an .xml file; got {str(path)!r}")
+    defaults = dict(scene.render_defaults)
+    res = defaults.get("res", 64) if res is None else res
+    spp = defaults.get("spp", 16) if spp is None else spp
+    max_depth = defaults.get("max_depth") if max_depth is None else max_depth
+    folder = path.parent / path.stem
+    d = to_mitsuba(scene, res=res, spp=spp, max_depth=max_depth, folder=folder)
+    cam = scene.camera
+    d["sensor"]["to_world"] = LookAt(tuple(cam.position), tuple(cam.look_at), tuple(cam.up))
+    if "rr_depth" in defaults and "max_depth" in d["integrator"]:
+        d["integrator"]["rr_depth"] = int(defaults["rr_depth"])
+    env = d.get("environment")
+    if env is not None and "to_world" in env:
+        m = np.asarray(env["to_world"].matrix, dtype=np.float64)
+        angle = math.degrees(math.atan2(m[0, 2], m[0, 0]))
+        if not np.allclose(m[:3, :3], _y_rotation(angle), atol=1e-6):
+            raise ValueError("the exporter's environment transform is not a rotation about +y")
+        env["to_world"] = Rotate((0.0, 1.0, 0.0), float(round(angle, 9)))
+    for value in d.values():
+        if isinstance(value, dict) and isinstance(value.get("filename"), str):
+            value["filename"] = os.path.relpath(value["filename"], path.parent).replace(os.sep, "/")
+    meta = f'mcvar ray_epsilon="{scene.ray_epsilon!r}"'
+    if env is not None and env.get("type") == "constant":
+        meta += f' environment_size="{scene.environment.height} {scene.environment.width}"'
+    if scene.description:
+        meta += ' description="' + scene.description.replace('"', "'").replace("--", "-") + '"'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(write_xml(d, comments=[f"{scene.name}: written by mcvar.scene.save_scene", meta]),
+                    encoding="utf-8")
+    return path
+
+
+def _y_rotation(angle_deg):
+    t = math.radians(angle_deg)
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 # --------------------------------------------------------------------------

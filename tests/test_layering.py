@@ -100,6 +100,13 @@ def _imports(path):
             yield target.split(".")[1]
 
 
+# The one import against the layers: mcvar.scene.save_scene writes a Scene through
+# the exporter of mcvar.interop.mitsuba (issue 23: one mapping from Scene to
+# Mitsuba, not two), which itself needs mcvar.scene; it is imported inside the
+# function, when called.
+UPWARD = {("scene", "interop")}
+
+
 @pytest.mark.parametrize("path,top", list(_modules()), ids=lambda v: str(v))
 def test_module_imports_only_lower_layers(path, top):
     assert top in LAYERS, f"{top} has no layer: add it to LAYERS and docs/conventions.md"
@@ -108,7 +115,7 @@ def test_module_imports_only_lower_layers(path, top):
         if target == "matplotlib":
             assert own == 7, f"{path.name} imports matplotlib outside layer 7"
             continue
-        if target == top or target not in LAYERS:
+        if target == top or target not in LAYERS or (top, target) in UPWARD:
             continue
         allowed = LAYERS[target] < own or (own == 7 and LAYERS[target] == 7)
         assert allowed, f"{path.name} (layer {own}) imports {target} (layer {LAYERS[target]})"

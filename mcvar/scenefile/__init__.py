@@ -13,10 +13,11 @@ from pathlib import Path
 
 from .build import CONDUCTORS, IOR, SUPPORTED, scene_fields
 from .mesh import MeshError, read_mesh, read_obj, read_ply
+from .write import LookAt, Rotate, write_xml
 from .xml import Node, SceneFileError, parse_xml
 
 __all__ = ["read_scene_file", "read_scene_string", "SceneFileError", "MeshError", "read_obj", "read_ply",
-           "read_mesh", "parse_xml", "scene_fields", "SUPPORTED", "IOR", "CONDUCTORS", "Node"]
+           "read_mesh", "parse_xml", "write_xml", "LookAt", "Rotate", "scene_fields", "SUPPORTED", "IOR", "CONDUCTORS", "Node"]
 
 
 def read_scene_file(path, **overrides) -> dict:
@@ -29,7 +30,7 @@ def read_scene_file(path, **overrides) -> dict:
     root = parse_xml(text, source=str(path), directory=path.resolve().parent, overrides=overrides)
     fields = scene_fields(root)
     fields["name"] = path.stem
-    fields["description"] = f"Mitsuba 3 scene file {path.name}"
+    fields["description"] = root.meta.get("description", f"Mitsuba 3 scene file {path.name}")
     return fields
 
 

@@ -279,6 +279,11 @@ class _Builder:
     # the scene ------------------------------------------------------------
     def build(self):
         scene_props = self.props(self.root)
+        # materials in the order the file declares them at the top level (used or not), then
+        # those nested in shapes: a scene written by save_scene keeps its material table
+        for node in scene_props.objects:
+            if node.tag == "bsdf" and "id" in node.attrs:
+                self.material(node)
         for node in scene_props.objects:
             self._check_type(node)
             if node.tag == "integrator":
@@ -360,7 +365,8 @@ class _Builder:
             t *= axes["diagonal"]
         else:
             t *= axes[axis]
-        fov_x = math.degrees(2.0 * math.atan(t))
+        factor = axes["diagonal"] if axis == "diagonal" else axes[axis]
+        fov_x = fov if factor == 1.0 else math.degrees(2.0 * math.atan(t))   # exact when already horizontal
         m = to_world[:3, :3]
         cols = [m[:, i] for i in range(3)]
         norms = [np.linalg.norm(c) for c in cols]
@@ -822,7 +828,13 @@ class _Builder:
                 raise self._texture_error(radiance, "radiance")
             if not np.all(radiance >= 0):
                 raise node.error("radiance must be non-negative")
-            self.environment = constant(radiance)
+            size = self.root.meta.get("environment_size", "16 32")
+            try:
+                height, width = (int(v) for v in size.split())
+            except ValueError:
+                raise SceneFileError(f"{self.root.source}: mcvar comment environment_size={size!r} must be "
+                                     "two integers 'height width'") from None
+            self.environment = constant(radiance, height=height, width=width)
             return
         if kind == "envmap":
             filename = p.get("filename", ("string",), None)
@@ -845,6 +857,19 @@ class _Builder:
         raise node.error(f"<emitter type={kind!r}> is not supported")  # pragma: no cover
 
     # the fields ---------------------------------------------------------------
+    def _ray_epsilon(self, extent):
+        """``1e-5`` of the scene's extent, or what a ``<!-- mcvar ray_epsilon="..." -->`` comment says."""
+        text = self.root.meta.get("ray_epsilon")
+        if text is None:
+            return max(1e-5 * extent, 1e-7)
+        try:
+            value = float(text)
+        except ValueError:
+            raise SceneFileError(f"{self.root.source}: mcvar comment ray_epsilon={text!r} is not a number") from None
+        if not (value > 0 and math.isfinite(value)):
+            raise SceneFileError(f"{self.root.source}: mcvar comment ray_epsilon must be > 0; got {text!r}")
+        return value
+
     def fields(self):
         tris = np.concatenate(self.triangles) if self.triangles else np.zeros((0, 3, 3))
         n_tri, n_sph = tris.shape[0], len(self.spheres)
@@ -877,7 +902,7 @@ class _Builder:
             point_light_position=points[:, 0:3], point_light_intensity=points[:, 3:6],
             environment=self.environment,
             checker_period=self.checker,
-            ray_epsilon=max(1e-5 * extent, 1e-7),
+            ray_epsilon=self._ray_epsilon(extent),
             camera=self.camera,
             render_defaults=dict(self.defaults),
         )

@@ -47,6 +47,8 @@ class Node:
     children: list = field(default_factory=list)
     source: str = "<string>"
     directory: Path = field(default_factory=Path.cwd)
+    #: ``key="value"`` pairs of ``<!-- mcvar ... -->`` comments directly in <scene>
+    meta: dict = field(default_factory=dict)
 
     @property
     def type(self):
@@ -69,6 +71,12 @@ class Node:
             raise self.error(f"missing attribute {key!r}")
         return self.attrs[key]
 
+
+_META = re.compile(r"\s*mcvar\s+(.*)", re.S)
+#: What a ``<!-- mcvar key="value" -->`` comment inside <scene> may set (Mitsuba ignores comments):
+#: the secondary-ray offset, the description and the pixel size of a constant environment
+#: (``"height width"``; it changes how the environment is sampled, not its radiance).
+META_KEYS = ("ray_epsilon", "description", "environment_size")
 
 _SUB = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
@@ -128,8 +136,18 @@ def parse_xml(text: str, *, source: str = "<string>", directory=None, overrides=
     def end(tag):
         stack.pop()
 
+    def comment(text):
+        m = _META.match(text)
+        if m and len(stack) == 1:
+            for key, value in re.findall(r'([A-Za-z_]+)="([^"]*)"', m.group(1)):
+                if key not in META_KEYS:
+                    raise SceneFileError(f"{source}:{parser.CurrentLineNumber}: unknown mcvar comment key "
+                                         f"{key!r}; known: {', '.join(META_KEYS)}")
+                stack[0].meta[key] = value
+
     parser.StartElementHandler = start
     parser.EndElementHandler = end
+    parser.CommentHandler = comment
     try:
         parser.Parse(text, True)
     except xml.parsers.expat.ExpatError as exc:
