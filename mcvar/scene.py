@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Mapping
 
 import numpy as np
@@ -55,7 +56,6 @@ __all__ = [
     "Scene",
     "SCENES",
     "load_scene",
-    "save_scene",
     "cornell_scene",
     "cornell_spheres_scene",
     "cornell_point_scene",
@@ -956,8 +956,6 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     Needs Mitsuba 3 installed (``mcvar[mitsuba]``): the exporter builds its
     transforms with it.
     """
-    from pathlib import Path
-
     # save_scene is the one function of this module above layer 4: it writes through the
     # exporter of mcvar.interop (layer 5), imported here, when called (tests/test_layering.py)
     from .interop.mitsuba import to_mitsuba
@@ -1091,3 +1089,37 @@ def cornell_door_scene(slit: float = 20.0, wall_z: float = 400.0, height: float 
 
 SCENES["cornell-door"] = cornell_door_scene
 __all__ += ["cornell_door_scene"]
+
+
+# --------------------------------------------------------------------------
+# the built-in scenes as Mitsuba 3 files (issue 23): mcvar/data/scenes/<name>.xml
+
+#: Where the built-in scenes are shipped as Mitsuba 3 XML (package data).
+SCENE_FILES_DIR = Path(__file__).resolve().parent / "data" / "scenes"
+
+
+def scene_file(name: str) -> Path:
+    """The shipped Mitsuba 3 file of the built-in scene ``name`` (``mcvar/data/scenes/<name>.xml``).
+
+    ``load_scene(scene_file(name))`` renders the image of ``load_scene(name)``
+    with the same seed, up to the float32 vertices of its PLY meshes; ``mitsuba
+    scene_file(name)`` renders it in Mitsuba 3. Written by
+    :func:`write_scene_files`.
+    """
+    if not isinstance(name, str) or name not in SCENES:
+        raise ValueError(f"name must be a built-in scene, one of {', '.join(SCENES)}; got {name!r}")
+    path = SCENE_FILES_DIR / f"{name}.xml"
+    if not path.is_file():
+        raise ValueError(f"{path} is missing: run mcvar.scene.write_scene_files() in a source checkout")
+    return path
+
+
+def write_scene_files(folder=None, *, res: int = 64, spp: int = 16) -> list:
+    """Write every built-in scene of :data:`SCENES` with :func:`save_scene` (default into
+    :data:`SCENE_FILES_DIR`), at ``mcvar render``'s default film and sample count.
+    Returns the paths written."""
+    folder = SCENE_FILES_DIR if folder is None else Path(folder)
+    return [save_scene(SCENES[name](), folder / f"{name}.xml", res=res, spp=spp) for name in SCENES]
+
+
+__all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR"]
