@@ -11,13 +11,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .build import CONDUCTORS, IOR, SUPPORTED, scene_fields
+from .build import IOR, SUPPORTED, scene_fields
 from .mesh import MeshError, read_mesh, read_obj, read_ply
 from .write import LookAt, Rotate, write_xml
 from .xml import Node, SceneFileError, parse_xml
 
 __all__ = ["read_scene_file", "read_scene_string", "SceneFileError", "MeshError", "read_obj", "read_ply",
-           "read_mesh", "parse_xml", "write_xml", "LookAt", "Rotate", "scene_fields", "SUPPORTED", "IOR", "CONDUCTORS", "Node"]
+           "read_mesh", "parse_xml", "write_xml", "LookAt", "Rotate", "scene_fields", "SUPPORTED", "IOR", "Node"]
 
 
 def read_scene_file(path, **overrides) -> dict:

@@ -35,14 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bsdf import Conductor, Glass, Lambertian, Microfacet, Mirror, Plastic
+from ..bsdf import Conductor, Glass, Lambertian, Mirror, Plastic
 from ..envmap import EnvironmentMap, constant
 from ..images import read_image
 from . import mesh as _mesh
 from .xml import (PLUGIN_TAGS, PROPERTY_TAGS, Node, SceneFileError, parse_float, parse_numbers,
                   parse_transform, parse_vector)
 
-__all__ = ["scene_fields", "SUPPORTED", "IOR", "CONDUCTORS"]
+__all__ = ["scene_fields", "SUPPORTED", "IOR"]
 
 #: Plugin types read, per element (docs/scene-files.md's table).
 SUPPORTED = {
@@ -52,7 +52,7 @@ SUPPORTED = {
     "rfilter": ("box",),
     "sampler": ("independent", "stratified", "multijitter", "orthogonal", "ldsampler"),
     "shape": ("rectangle", "cube", "disk", "sphere", "obj", "ply"),
-    "bsdf": ("diffuse", "twosided", "conductor", "roughconductor", "dielectric", "plastic"),
+    "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "point", "constant", "envmap"),
     "texture": ("checkerboard (as an area emitter's radiance)",),
 }
@@ -67,11 +67,6 @@ IOR = {
     "sodium chloride": 1.544, "amber": 1.55, "pet": 1.5750, "diamond": 2.419,
 }
 
-#: Mitsuba conductor names that mcvar has (``Conductor.preset``; Johnson and
-#: Christy's data at three wavelengths, where Mitsuba integrates the same
-#: measurements over its RGB curves: close, not identical).
-CONDUCTORS = {"Cu": "copper", "Au": "gold"}
-
 #: Triangles per culling group of a mesh.
 GROUP_SIZE = 64
 
@@ -81,7 +76,7 @@ _IGNORED = {
              "sample_border"},
     "sensor": {"near_clip", "far_clip", "shutter_open", "shutter_close"},
     "sampler": {"seed", "jitter", "scramble_type", "dimension"},
-    "bsdf": {"sample_visible"},
+    "bsdf": set(),
     "emitter": {"sampling_weight"},
     "integrator": set(),
     "shape": set(),
@@ -272,6 +267,8 @@ class _Builder:
         kind = node.type
         if kind is None:
             raise node.error("missing attribute 'type'")
+        if node.tag == "bsdf" and kind in _NOT_THE_SAME:
+            raise node.error(f"<bsdf type={kind!r}> is not supported: {_NOT_THE_SAME[kind]}")
         if kind not in SUPPORTED[node.tag] and not (node.tag == "texture"):
             raise node.error(f"<{node.tag} type={kind!r}> is not supported; supported: "
                              f"{', '.join(SUPPORTED[node.tag])}")
@@ -473,8 +470,8 @@ class _Builder:
                 if inner[0].type == "twosided":
                     raise inner[0].error("twosided inside twosided")
                 return self.bsdf(inner[0])
-            if kind in ("conductor", "roughconductor"):
-                return self._conductor(node, p, rough=kind == "roughconductor")
+            if kind == "conductor":
+                return self._conductor(node, p)
             if kind == "dielectric":
                 eta = _ior(p, "int_ior", IOR["bk7"]) / _ior(p, "ext_ior", IOR["air"])
                 r = p.color("specular_reflectance", 1.0)
@@ -503,31 +500,18 @@ class _Builder:
             raise node.error(str(exc)) from None
         raise node.error(f"<bsdf type={kind!r}> is not supported")  # pragma: no cover
 
-    def _conductor(self, node, p, rough):
+    def _conductor(self, node, p, rough=False):
+        """Mitsuba's smooth ``conductor``: ``material`` ``none`` (a mirror, times
+        ``specular_reflectance``), ``Cu`` or ``Au`` (mcvar's presets), or ``eta`` and ``k`` as <rgb>."""
         material = p.get("material", ("string",), None)
         eta = p.color("eta", None)
         k = p.color("k", None)
         spec = p.color("specular_reflectance", 1.0)
-        alpha = distribution = None
-        if rough:
-            distribution = p.get("distribution", ("string",), "beckmann")
-            alpha = p.get("alpha", ("float",), None)
-            au = p.get("alpha_u", ("float",), None)
-            av = p.get("alpha_v", ("float",), None)
-            if alpha is None:
-                if (au is None) != (av is None):
-                    raise node.error("give both alpha_u and alpha_v, or alpha")
-                if au is not None and au != av:
-                    raise node.error("anisotropic roughness (alpha_u != alpha_v) is not supported: mcvar's "
-                                     "tangent frames are not Mitsuba's")
-                alpha = 0.1 if au is None else au
-            if distribution not in ("ggx", "beckmann"):
-                raise node.error(f"distribution={distribution!r} is not supported; supported: ggx, beckmann")
-            if not 0.0 < alpha <= 1.0:
-                raise node.error(f"alpha must lie in (0, 1]; got {alpha}")
         p.done()
         if isinstance(spec, Node):
             raise self._texture_error(spec, "specular_reflectance")
+        if isinstance(eta, Node) or isinstance(k, Node):
+            raise node.error("textured eta or k is not supported")
         if (eta is None) != (k is None):
             raise node.error("give both eta and k, or a material name")
         if eta is not None and material is not None:
@@ -535,26 +519,16 @@ class _Builder:
         if eta is None and material is None:
             material = "Cr"                           # Mitsuba's default conductor
         if material == "none":
-            if rough:
-                if not np.allclose(spec, 1.0):
-                    raise node.error("a rough mirror (material none) with specular_reflectance != 1 is not "
-                                     "supported: mcvar's Microfacet tints by Schlick's F0, not by a factor")
-                return Microfacet(alpha, distribution=distribution, reflectance=1.0)
             return Mirror(spec)
         if not np.allclose(spec, 1.0):
             raise node.error("specular_reflectance != 1 on a conductor is not supported (only with "
                              "material none, the mirror)")
         if material is not None:
-            if material not in CONDUCTORS:
-                raise node.error(f"conductor material {material!r} is not one mcvar has; supported: none, "
-                                 f"{', '.join(CONDUCTORS)}, or eta and k as <rgb>")
-            if rough:
-                return Conductor.preset(CONDUCTORS[material], alpha_x=alpha, distribution=distribution)
-            return Conductor.preset(CONDUCTORS[material])
-        if isinstance(eta, Node) or isinstance(k, Node):
-            raise node.error("textured eta or k is not supported")
-        if rough:
-            return Conductor(eta, k, alpha_x=alpha, distribution=distribution)
+            raise node.error(f"conductor material {material!r} is not supported: Mitsuba integrates its "
+                             "measured spectra over its RGB curves, mcvar's presets (copper, gold) sample them "
+                             "at three wavelengths (normal-incidence blue reflectance of Au: 0.32 vs 0.41); "
+                             "give material none (a mirror) or the index as <rgb name=\"eta\"> and "
+                             "<rgb name=\"k\">, which both engines use alike")
         return Conductor(eta, k)
 
     def _texture_error(self, tex: Node, what):
