@@ -80,7 +80,8 @@ def _transform(name, value, pad) -> list[str]:
         body = (f"{pad}    <lookat{_attr('origin', _vec(value.origin))}{_attr('target', _vec(value.target))}"
                 f"{_attr('up', _vec(value.up))}/>")
     elif isinstance(value, Rotate):
-        body = f"{pad}    <rotate{_attr('axis', _vec(value.axis))}{_attr('angle', _num(value.angle))}/>"
+        axis = "".join(_attr(k, _num(a)) for k, a in zip("xyz", value.axis))
+        body = f"{pad}    <rotate{axis}{_attr('angle', _num(value.angle))}/>"
     else:
         m = np.asarray(getattr(value, "matrix", value), dtype=np.float64)
         if m.shape != (4, 4):

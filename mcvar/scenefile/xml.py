@@ -234,7 +234,7 @@ def parse_transform(node: Node) -> np.ndarray:
 
     Mitsuba's rule: each operation is applied after the ones above it, so
     ``<translate/><rotate/>`` is ``R @ T``. ``rotate`` takes ``angle`` in
-    degrees about ``axis="x, y, z"`` or ``x=, y=, z=``; ``scale`` takes
+    degrees about the axis ``x=, y=, z=``; ``scale`` takes
     ``value`` (one number: uniform) or ``x=, y=, z=`` (missing ones 1);
     ``matrix`` 16 numbers row by row (or 9 for a 3x3); ``lookat`` ``origin``,
     ``target`` and optional ``up``.
@@ -245,12 +245,11 @@ def parse_transform(node: Node) -> np.ndarray:
         if child.tag == "translate":
             op[:3, 3] = parse_vector(child)
         elif child.tag == "rotate":
-            if "axis" in child.attrs:
-                axis = parse_numbers(child, child.attrs["axis"], "axis", 3)
-            else:
-                axis = np.array([parse_float(child, k) if k in child.attrs else 0.0 for k in "xyz"])
-            if not np.linalg.norm(axis) > 0:
-                raise child.error("rotate needs a non-zero axis (axis=\"x, y, z\" or x=, y=, z=)")
+            axis = np.array([parse_float(child, k) if k in child.attrs else 0.0 for k in "xyz"])
+            if not abs(np.linalg.norm(axis) - 1.0) <= 1e-6:
+                # Mitsuba 3 uses the axis as given: a longer one scales as it rotates
+                raise child.error(f"rotate needs a unit axis (x=, y=, z=; Mitsuba 3 does not normalise it); "
+                                  f"got length {np.linalg.norm(axis):g}")
             op[:3, :3] = _rotation(axis, parse_float(child, "angle"))
         elif child.tag == "scale":
             if "value" in child.attrs:
