@@ -908,8 +908,8 @@ def load_scene(name, **options) -> Scene:
                                          and (name.lower().endswith(".xml") or os.sep in name)):
         return _scene_from_fields(read_scene_file(name, **options))
     if not isinstance(name, str):
-        raise TypeError(f"name must be a scene name, one of {tuple(SCENES)}, or the path of a Mitsuba 3 "
-                        f".xml file; got {type(name).__name__}")
+        raise TypeError(f"name must be a string (a scene name, one of {tuple(SCENES)}, or the path of a "
+                        f"Mitsuba 3 .xml file) or an os.PathLike; got {type(name).__name__}")
     if name not in SCENES:
         raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)} "
                          "(or the path of a Mitsuba 3 .xml file)")

@@ -779,3 +779,60 @@ def test_a_checkerboard_seen_through_a_tilted_camera_on_a_wide_film_renders_as_i
     m_scene = mi.load_string(text)
     theirs = np.array([np.array(mi.render(m_scene, spp=32, seed=k))[..., :3] for k in range(replicates)])
     assert_same_image_per_block(ours, theirs)
+
+
+# --------------------------------------------------------------------------
+# the command line: mcvar render / converge FILE.xml use the file's settings unless told otherwise
+
+def _cli_file(tmp_path):
+    path = tmp_path / "small.xml"
+    path.write_text(scene_xml('<shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/>'
+                              '</transform></shape><emitter type="constant"/>', w=6, h=4)
+                    .replace("</film>", "</film><sampler type=\"independent\"><integer name=\"sample_count\" "
+                                        "value=\"3\"/></sampler>")
+                    .replace("<sensor", '<integrator type="path"><integer name="max_depth" value="3"/>'
+                                        '<integer name="rr_depth" value="2"/></integrator><sensor'))
+    return path
+
+
+def test_mcvar_render_takes_the_files_film_and_sample_count(tmp_path, capsys):
+    from mcvar.cli import main
+
+    path = _cli_file(tmp_path)
+    assert main(["render", str(path), "--quiet", "--out", str(tmp_path / "a.npy")]) == 0
+    assert "6x4, 3 spp" in capsys.readouterr().out
+    assert np.load(tmp_path / "a.npy").shape == (4, 6, 3)
+    assert main(["render", str(path), "--quiet", "--res", "5", "--spp", "2", "--out", str(tmp_path / "b.npy")]) == 0
+    assert "5x5, 2 spp" in capsys.readouterr().out
+
+
+def test_mcvar_render_passes_the_files_depths(tmp_path, monkeypatch):
+    import mcvar.integrators as integrators
+    from mcvar.cli import main
+
+    seen = {}
+    real = integrators.render
+
+    def spy(scene, **kw):
+        seen.update(kw)
+        return real(scene, **kw)
+
+    monkeypatch.setattr(integrators, "render", spy)
+    main(["render", str(_cli_file(tmp_path)), "--quiet", "--uniform", "--out", str(tmp_path / "a.npy")])
+    assert seen["max_depth"] == 3 and seen["rr_depth"] == 2 and seen["res"] == (6, 4) and seen["spp"] == 3
+    main(["render", str(_cli_file(tmp_path)), "--quiet", "--uniform", "--max-depth", "5", "--rr-depth", "4",
+          "--out", str(tmp_path / "a.npy")])
+    assert seen["max_depth"] == 5 and seen["rr_depth"] == 4
+
+
+def test_mcvar_converge_takes_the_files_width_and_depth(tmp_path, monkeypatch):
+    import mcvar.report as report
+    from mcvar.cli import main
+
+    seen = {}
+    monkeypatch.setattr(report, "convergence_report", lambda target, out, **kw: seen.update(kw, target=target) or {})
+    main(["converge", str(_cli_file(tmp_path)), "--quiet", "--out", str(tmp_path / "c")])
+    assert seen["res"] == 6 and seen["methods"] == ["path:3"] and seen["target"].endswith("small.xml")
+    main(["converge", str(_cli_file(tmp_path)), "--quiet", "--res", "8", "--methods", "path,direct",
+          "--out", str(tmp_path / "c")])
+    assert seen["res"] == 8 and seen["methods"] == ["path", "direct"]
