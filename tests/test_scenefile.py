@@ -574,6 +574,10 @@ MALFORMED = [
     ('<shape><float name="radius" value="1"/></shape>', "missing attribute 'type'"),
     ('<emitter type="spot"/>', "<emitter type='spot'> is not supported"),
     ('<shape type="sphere"><spectrum name="x" value="400:0.1, 500:0.2"/></shape>', "sampled spectra"),
+    ('<integrator type="path"/><integrator type="path"/>', "a second <integrator>"),
+    ('<integrator type="volpath"/>', "<integrator type='volpath'> is not supported; supported: path"),
+    ('<shape type="sphere"><boolean name="flip_normals" value="maybe"/></shape>', "must be true or false"),
+    ('<shape type="sphere"><string name="radius" value="1"/></shape>', "must be given as <float>"),
 ]
 
 

@@ -140,6 +140,8 @@ class _Props:
         if name not in self.values:
             return default
         kind, value, child = self.values.pop(name)
+        if kind == "integer" and "float" in kinds:
+            return float(value)                       # as Mitsuba: an integer where a float is read
         if kind not in kinds:
             raise child.error(f"property {name!r} must be given as {' or '.join('<' + k + '>' for k in kinds)}")
         return value
@@ -292,12 +294,17 @@ class _Builder:
         scene_props = self.props(self.root)
         # materials in the order the file declares them at the top level (used or not), then
         # those nested in shapes: a scene written by save_scene keeps its material table
-        for node in scene_props.objects:
+        objects = scene_props.objects + [v for kind, v, _ in scene_props.values.values() if kind == "object"]
+        for node in objects:
             if node.tag == "bsdf" and "id" in node.attrs:
                 self.material(node)
-        for node in scene_props.objects:
+        seen_integrator = None
+        for node in objects:
             self._check_type(node)
             if node.tag == "integrator":
+                if seen_integrator is not None:
+                    raise node.error(f"a second <integrator> (the first is on line {seen_integrator.line})")
+                seen_integrator = node
                 self.integrator(node)
             elif node.tag == "sensor":
                 if self.camera is not None:
