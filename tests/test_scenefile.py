@@ -22,7 +22,7 @@ from mcvar.bsdf import Conductor, Glass, Lambertian, Mirror, Plastic
 from mcvar.integrators import render
 from mcvar.scene import SCENES, Camera, load_scene, save_scene, scene_file
 from mcvar.scenefile import SceneFileError, read_obj, read_ply, read_scene_string
-from mcvar.scenefile.mesh import DISK_SEGMENTS, cube, disk, rectangle
+from mcvar.scenefile.mesh import DISK_SEGMENTS, cube, disk, rectangle, split_by_checker
 from mcvar.scenefile.xml import parse_transform, parse_xml
 
 try:  # Mitsuba 3 is a test dependency, never a runtime one
@@ -362,7 +362,7 @@ def test_bsdfs_map_to_mcvars_models():
     ('<bsdf type="conductor"><string name="material" value="Au"/></bsdf>', "three wavelengths"),
     ('<bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="x.png"/>'
      '</texture></bsdf>', "integrator loops"),
-    ('<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"/></bsdf>', "emitted radiance"),
+    ('<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"/></bsdf>', "rectangle or a PLY"),
     ('<bsdf type="twosided"><bsdf type="diffuse"/><bsdf type="diffuse"/></bsdf>', "exactly one"),
     ('<bsdf type="principled"/>', "supported: diffuse"),
 ])
@@ -548,6 +548,42 @@ def test_checkerboard_emission_equals_mitsubas_at_every_point(a, c0, c1):
         si = m_scene.ray_intersect(mi.Ray3f(o=mi.Point3f(p[0], up, p[2]), d=mi.Vector3f(0, -up, 0)))
         theirs.append(np.array(si.emitter(m_scene).eval(si)))
     np.testing.assert_allclose(ours, np.array(theirs), rtol=1e-6)
+
+
+FLOOR_CHECKER = ('<bsdf type="twosided" id="board"><bsdf type="diffuse">'
+                 '<texture type="checkerboard" name="reflectance"><rgb name="color0" value="0.8, 0.7, 0.6"/>'
+                 '<rgb name="color1" value="0.1, 0.2, 0.3"/><transform name="to_uv"><scale x="3" y="2"/>'
+                 '<translate x="0.25"/></transform></texture></bsdf></bsdf>'
+                 '<shape type="rectangle"><transform name="to_world"><scale value="2"/><rotate x="1" angle="-90"/>'
+                 '<rotate y="1" angle="20"/></transform><ref id="board"/></shape>')
+
+
+def test_cutting_triangles_along_a_checkerboard_keeps_area_and_puts_each_piece_in_one_square():
+    # triangles in the plane y = 0 with g an affine function of (x, z): every piece's corners map into its square
+    rng = np.random.default_rng(6061)
+    xz = rng.uniform(-3, 3, size=(30, 3, 2))
+    tris = np.stack([xz[..., 0], np.zeros((30, 3)), xz[..., 1]], axis=-1)
+    a, b = np.array([[1.3, 0.4], [-0.2, 0.9]]), np.array([0.25, -0.6])
+    pieces, square = split_by_checker(tris, xz @ a.T + b)
+    assert pieces.shape[0] > 30 and square.shape == (pieces.shape[0], 2)
+    assert area(pieces) == pytest.approx(area(tris), rel=1e-12)
+    g = pieces[..., [0, 2]] @ a.T + b
+    assert np.all(g >= square[:, None, :] - 1e-9) and np.all(g <= square[:, None, :] + 1 + 1e-9)
+    # wound as their triangles: all normals along -y or +y as the originals
+    assert set(np.sign(normals(pieces)[:, 1])) <= set(np.sign(normals(tris)[:, 1]))
+
+
+@needs_mitsuba
+def test_a_checkerboard_reflectance_is_cut_into_its_squares_as_mitsuba_paints_them():
+    scene = build(FLOOR_CHECKER)
+    assert {scene.material_names[m] for m in scene.prim_material} == {"board-color0", "board-color1"}
+    assert area(scene.triangles) == pytest.approx(16.0)
+    m_scene = mi.load_string(scene_xml(FLOOR_CHECKER))
+    centres = scene.triangles.mean(axis=1)
+    for c, m in zip(centres, scene.prim_material):
+        si = m_scene.ray_intersect(mi.Ray3f(o=mi.Point3f(c[0], 1.0, c[2]), d=mi.Vector3f(0, -1, 0)))
+        theirs = np.array(si.bsdf().eval_diffuse_reflectance(si))
+        np.testing.assert_allclose(scene.materials[m].albedo, theirs, rtol=1e-6)
 
 
 # --------------------------------------------------------------------------

@@ -296,7 +296,7 @@ class _Builder:
         # those nested in shapes: a scene written by save_scene keeps its material table
         objects = scene_props.objects + [v for kind, v, _ in scene_props.values.values() if kind == "object"]
         for node in objects:
-            if node.tag == "bsdf" and "id" in node.attrs:
+            if node.tag == "bsdf" and "id" in node.attrs and self._checker_reflectance(node) is None:
                 self.material(node)
         seen_integrator = None
         for node in objects:
@@ -556,9 +556,9 @@ class _Builder:
                              "constant albedo per primitive, and a per-hit texture lookup would need the "
                              "integrator loops (mcvar.integrators) to evaluate it")
         if tex.type == "checkerboard":
-            return tex.error(f"a checkerboard texture as {what} is not supported: mcvar's only texture is "
-                             "the world-space checker of emitted radiance (Scene.checker_period); use it as "
-                             "an area emitter's radiance")
+            return tex.error(f"a checkerboard texture as {what} is not supported: it is read as a diffuse "
+                             "reflectance on a rectangle or a PLY mesh with u, v (cut into its squares), and as "
+                             "an area emitter's radiance (mcvar's Scene.checker_period)")
         return tex.error(f"<texture type={tex.type!r}> is not supported; supported: checkerboard (as an "
                          "area emitter's radiance)")
 
@@ -653,7 +653,12 @@ class _Builder:
                 uv_tris = uv_tris[:, [0, 2, 1]]
             if flip:
                 uv_tris = uv_tris[:, [0, 2, 1]]
-        mat = self.material(bsdfs[0] if bsdfs else None, emitting=bool(emitters))
+        checker = self._checker_reflectance(bsdfs[0]) if bsdfs else None
+        if checker is None:
+            mat = self.material(bsdfs[0] if bsdfs else None, emitting=bool(emitters))
+        else:
+            tris, mat = self._checkered(tris, uv_tris, bsdfs[0], *checker)
+            uv_tris = None
         n = tris.shape[0]
         emission = np.zeros((n, 3))
         light = np.full(n, -1)
@@ -663,10 +668,11 @@ class _Builder:
             if np.any(radiance > 0):
                 light = self._parallelogram_lights(tris, radiance)
         self.triangles.append(tris)
-        self.tri_material.append(np.full(n, mat))
+        self.tri_material.append(np.broadcast_to(np.asarray(mat, dtype=np.int64), (n,)).copy())
         self.tri_emission.append(emission)
         self.tri_light.append(light)
-        self.tri_group.append(self._groups(tris) if kind in ("obj", "ply", "disk") and n > GROUP_SIZE
+        self.tri_group.append(self._groups(tris) if (kind in ("obj", "ply", "disk") or checker is not None)
+                              and n > GROUP_SIZE
                               else np.zeros(n, dtype=np.int64))
 
     def _check_inward_spheres(self):
@@ -684,6 +690,59 @@ class _Builder:
                                  "everything else is inside it (mcvar then emits on both sides); here something "
                                  "outside could see its outside")
             self.two_sided_spheres.add(k)
+
+    def _checker_reflectance(self, node):
+        """``(color0, color1, to_uv, texture)`` if ``node`` is a ``diffuse`` (possibly in
+        ``twosided``) whose reflectance is a ``checkerboard``; else None."""
+        seen = set()
+        while node.type == "twosided":
+            if id(node) in seen:
+                return None                            # material() reports the cycle
+            seen.add(id(node))
+            p = self.props(node)
+            inner = [o for o in p.objects if o.tag == "bsdf"] + [v for kind, v, _ in p.values.values()
+                                                                 if kind == "object" and v.tag == "bsdf"]
+            if len(inner) != 1:
+                return None
+            node = inner[0]
+        if node.type != "diffuse":
+            return None
+        p = self.props(node)
+        given = p.values.get("reflectance")
+        if given is None or given[0] != "object" or given[1].type != "checkerboard":
+            return None
+        p.get("reflectance", ("object",))
+        p.done()
+        tex = given[1]
+        tp = self.props(tex)
+        c0 = tp.color("color0", 0.4)
+        c1 = tp.color("color1", 0.2)
+        to_uv = tp.get("to_uv", ("transform",), np.eye(4))
+        tp.done()
+        if isinstance(c0, Node) or isinstance(c1, Node):
+            raise tex.error("nested textures in a checkerboard are not supported")
+        return c0, c1, to_uv, tex
+
+    def _checkered(self, tris, uv, bsdf_node, c0, c1, to_uv, tex):
+        """A diffuse checkerboard as geometry: the shape cut along the squares' edges
+        (exact: texture coordinates are linear across each triangle), each piece with the
+        Lambertian of its square's colour (Mitsuba: ``color1`` where ``floor(2 u') +
+        floor(2 v')`` is odd). Returns the pieces and their material indices."""
+        if uv is None:
+            raise tex.error("a checkerboard reflectance needs texture coordinates: on a rectangle or a PLY "
+                            "mesh with u, v")
+        g = 2.0 * (uv @ to_uv[np.ix_([0, 1], [0, 1])].T + to_uv[[0, 1], 3])
+        try:
+            pieces, square = _mesh.split_by_checker(tris, g)
+            key = ("checker", id(bsdf_node))
+            if key not in self._material_of:
+                name = bsdf_node.attrs.get("id") or f"checkerboard-{tex.line}"
+                self._material_of[key] = (self._add_material(Lambertian(c0), f"{name}-color0"),
+                                          self._add_material(Lambertian(c1), f"{name}-color1"))
+        except ValueError as exc:
+            raise tex.error(str(exc)) from None
+        m0, m1 = self._material_of[key]
+        return pieces, np.where(square.sum(axis=1) % 2 == 1, m1, m0)
 
     def _groups(self, tris):
         """Culling groups of ~GROUP_SIZE triangles by recursive median splits of the centroids."""
@@ -728,6 +787,9 @@ class _Builder:
         if isinstance(radiance, Node):
             if radiance.type != "checkerboard":
                 raise self._texture_error(radiance, "radiance")
+            if checker_shape is not None and checker_shape[2] is None and checker_shape[0] in ("rectangle", "ply"):
+                raise radiance.error("a checkerboard radiance on a shape whose reflectance is a checkerboard "
+                                     "too is not supported")
             if checker_shape is None or checker_shape[2] is None:
                 raise radiance.error("a checkerboard radiance is supported on a rectangle or a PLY mesh with "
                                      "texture coordinates (u, v) (mcvar's checker is a pattern in world x, z)")

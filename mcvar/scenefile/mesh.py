@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["MeshError", "read_obj", "read_ply", "read_mesh", "rectangle", "cube", "disk", "DISK_SEGMENTS"]
+__all__ = ["MeshError", "read_obj", "read_ply", "read_mesh", "rectangle", "cube", "disk", "DISK_SEGMENTS",
+           "split_by_checker", "CHECKER_MAX_TRIANGLES"]
 
 #: Sides of the polygon that stands in for Mitsuba's analytic ``disk``.
 DISK_SEGMENTS = 256
@@ -354,3 +355,80 @@ def _read_bytes(path: Path) -> bytes:
 def _read_text(path: Path) -> str:
     return _read_bytes(path).decode("utf-8", errors="replace")
 
+
+
+# --------------------------------------------------------------------------
+# a checkerboard texture as geometry
+
+#: Most triangles one shape may be cut into by a checkerboard reflectance.
+CHECKER_MAX_TRIANGLES = 200_000
+
+
+def _split(poly, axis, c):
+    """Cut a convex polygon (list of (position, g) pairs) by the line g[axis] = c: (below, above)."""
+    below, above = [], []
+    n = len(poly)
+    for k in range(n):
+        p, q = poly[k], poly[(k + 1) % n]
+        sp, sq = p[1][axis] - c, q[1][axis] - c
+        if sp <= 0:
+            below.append(p)
+        if sp >= 0:
+            above.append(p)
+        if (sp < 0 < sq) or (sq < 0 < sp):
+            t = sp / (sp - sq)
+            cut = (p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1]))
+            below.append(cut)
+            above.append(cut)
+    return below, above
+
+
+def split_by_checker(tris, g):
+    """Cut triangles along the lines of a checkerboard so that every piece lies in one square.
+
+    Parameters
+    ----------
+    tris : ndarray, shape (T, 3, 3)
+        World positions.
+    g : ndarray, shape (T, 3, 2)
+        Each vertex's texture coordinates in units of one square (``2 (u', v')``
+        for Mitsuba's checkerboard, whose squares are half a unit of ``u', v'``).
+        They are interpolated linearly across each triangle, so cutting along
+        ``g = integer`` and fan-triangulating the convex pieces is exact.
+
+    Returns
+    -------
+    pieces : ndarray, shape (P, 3, 3)
+        Triangles wound as the triangle they were cut from.
+    square : ndarray of int, shape (P, 2)
+        ``floor(g)`` of each piece: the square it lies in.
+    """
+    tris = np.asarray(tris, dtype=np.float64)
+    g = np.asarray(g, dtype=np.float64)
+    lo, hi = np.floor(g.min(axis=1)), np.ceil(g.max(axis=1))
+    cells = np.prod(np.maximum(hi - lo, 1.0), axis=1)
+    if 2.0 * cells.sum() > CHECKER_MAX_TRIANGLES:
+        raise ValueError(f"the checkerboard would cut the shape into about {int(2 * cells.sum())} triangles "
+                         f"(more than {CHECKER_MAX_TRIANGLES}): use fewer, larger squares")
+    inside = np.all(hi - lo <= 1.0, axis=1)
+    pieces = [tris[inside]]
+    squares = [lo[inside].astype(np.int64)]
+    for t in np.flatnonzero(~inside):
+        polys = [[(tris[t, k], g[t, k]) for k in range(3)]]
+        for axis in (0, 1):
+            for c in range(int(lo[t, axis]) + 1, int(hi[t, axis])):
+                cut = []
+                for poly in polys:
+                    below, above = _split(poly, axis, float(c))
+                    cut += [p for p in (below, above) if len(p) >= 3]
+                polys = cut
+        for poly in polys:
+            centre = np.mean([v[1] for v in poly], axis=0)
+            for k in range(1, len(poly) - 1):
+                pieces.append(np.array([[poly[0][0], poly[k][0], poly[k + 1][0]]]))
+                squares.append(np.floor(centre)[None].astype(np.int64))
+    out = np.concatenate(pieces)
+    square = np.concatenate(squares)
+    area2 = np.linalg.norm(np.cross(out[:, 1] - out[:, 0], out[:, 2] - out[:, 0]), axis=1)
+    keep = area2 > 1e-14 * max(float(area2.max(initial=0.0)), 1e-300)
+    return out[keep], square[keep]
