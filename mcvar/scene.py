@@ -982,7 +982,8 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
         angle = math.degrees(math.atan2(m[0, 2], m[0, 0]))
         if not np.allclose(m[:3, :3], _y_rotation(angle), atol=1e-6):
             raise ValueError("the exporter's environment transform is not a rotation about +y")
-        env["to_world"] = Rotate((0.0, 1.0, 0.0), float(round(angle, 9)))
+        # the exporter builds it in float32: its angle to 1e-4 degrees (whole degrees in practice)
+        env["to_world"] = Rotate((0.0, 1.0, 0.0), float(round(angle, 4)))
     for value in d.values():
         if isinstance(value, dict) and isinstance(value.get("filename"), str):
             value["filename"] = os.path.relpath(value["filename"], path.parent).replace(os.sep, "/")

@@ -670,6 +670,20 @@ def test_every_builtin_scene_round_trips_to_the_same_image(tmp_path, name):
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
 
 
+@needs_mitsuba
+@pytest.mark.parametrize("which", ["sparse", "gradient"])
+def test_environment_maps_round_trip_through_the_exporters_refined_bitmap(tmp_path, which):
+    from mcvar.envmap import gradient, sparse_lights
+
+    env = sparse_lights() if which == "sparse" else gradient(top=2.0, bottom=0.1)
+    scene = dataclasses.replace(load_scene("quad-environment"), environment=env)
+    back = load_scene(save_scene(scene, tmp_path / "q.xml", res=8, spp=2))
+    assert back.environment.image.shape == env.image.shape                 # the refinement undone
+    np.testing.assert_allclose(back.environment.image, env.image, rtol=1e-6)  # to float32 (EXR)
+    np.testing.assert_allclose(render(back, spp=4, res=8, rng=5).image, render(scene, spp=4, res=8, rng=5).image,
+                               rtol=1e-6, atol=1e-7)
+
+
 @pytest.mark.parametrize("name", list(SCENES))
 def test_every_shipped_scene_file_renders_its_builders_image(name):
     back = load_scene(scene_file(name))
