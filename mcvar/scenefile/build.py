@@ -39,8 +39,9 @@ from ..bsdf import Conductor, Glass, Lambertian, Mirror, Plastic
 from ..envmap import EnvironmentMap, constant
 from ..images import read_image
 from . import mesh as _mesh
-from .xml import (PLUGIN_TAGS, PROPERTY_TAGS, Node, SceneFileError, parse_float, parse_numbers,
-                  parse_transform, parse_vector)
+from .lights import as_parallelogram, envmap_to_mcvar, unrefine
+from .props import IOR, Props, read_ior
+from .xml import PLUGIN_TAGS, PROPERTY_TAGS, Node, SceneFileError
 
 __all__ = ["scene_fields", "SUPPORTED", "IOR"]
 
@@ -55,16 +56,6 @@ SUPPORTED = {
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "point", "constant", "envmap"),
     "texture": ("checkerboard (as an area emitter's radiance)",),
-}
-
-#: Mitsuba 3's named indices of refraction (its ``ior.h`` table).
-IOR = {
-    "vacuum": 1.0, "helium": 1.000036, "hydrogen": 1.000132, "air": 1.000277,
-    "carbon dioxide": 1.00045, "water": 1.3330, "acetone": 1.36, "ethanol": 1.361,
-    "carbon tetrachloride": 1.461, "glycerol": 1.4729, "benzene": 1.501,
-    "silicone oil": 1.52045, "bromine": 1.661, "water ice": 1.31, "fused quartz": 1.458,
-    "pyrex": 1.470, "acrylic glass": 1.49, "polypropylene": 1.49, "bk7": 1.5046,
-    "sodium chloride": 1.544, "amber": 1.55, "pet": 1.5750, "diamond": 2.419,
 }
 
 #: Mitsuba BSDFs whose mcvar namesake is a different model (measured against
@@ -84,150 +75,8 @@ _NOT_THE_SAME = {
 #: Triangles per culling group of a mesh.
 GROUP_SIZE = 64
 
-# properties read past on purpose: they do not change the image mcvar computes
-_IGNORED = {
-    "film": {"pixel_format", "component_format", "file_format", "banner", "high_quality_edges",
-             "sample_border"},
-    "sensor": {"near_clip", "far_clip", "shutter_open", "shutter_close"},
-    "sampler": {"seed", "jitter", "scramble_type", "dimension"},
-    "bsdf": set(),
-    "emitter": {"sampling_weight"},
-    "integrator": set(),
-    "shape": set(),
-    "rfilter": set(),
-    "texture": set(),
-}
-
-
-class _Props:
-    """The properties and nested objects of one plugin element, read once each.
-
-    ``get`` records every name it is asked for; :meth:`done` raises for
-    whatever the file gave that the plugin did not read, listing what it
-    reads (never a silent omission).
-    """
-
-    def __init__(self, node: Node, builder: "_Builder"):
-        self.node = node
-        self.values: dict[str, tuple[str, object, Node]] = {}
-        self.objects: list[Node] = []
-        self.asked: list[str] = []
-        for child in node.children:
-            if child.tag == "default" and node.tag == "scene":
-                continue
-            if child.tag == "ref":
-                target = builder.resolve(child)
-                if child.name:
-                    self.values[child.name] = ("object", target, child)
-                else:
-                    self.objects.append(target)
-            elif child.tag in PLUGIN_TAGS:
-                if child.name:
-                    self.values[child.name] = ("object", child, child)
-                else:
-                    self.objects.append(child)
-            elif child.tag in PROPERTY_TAGS:
-                name = child.require("name")
-                if name in self.values:
-                    raise child.error(f"property {name!r} is given twice")
-                self.values[name] = (child.tag, _value(child), child)
-            else:
-                raise child.error(f"<{child.tag}> is not supported inside <{node.tag}>; supported: "
-                                  f"{', '.join(PROPERTY_TAGS + PLUGIN_TAGS)}, ref")
-
-    def get(self, name, kinds, default=None):
-        self.asked.append(name)
-        if name not in self.values:
-            return default
-        kind, value, child = self.values.pop(name)
-        if kind == "integer" and "float" in kinds:
-            return float(value)                       # as Mitsuba: an integer where a float is read
-        if kind not in kinds:
-            raise child.error(f"property {name!r} must be given as {' or '.join('<' + k + '>' for k in kinds)}")
-        return value
-
-    def child(self, name):
-        """The element that gave property ``name`` (for messages), else the plugin's."""
-        return self.values[name][2] if name in self.values else self.node
-
-    def color(self, name, default):
-        self.asked.append(name)
-        if name not in self.values:
-            return None if default is None else np.broadcast_to(np.asarray(default, dtype=np.float64), 3).copy()
-        kind, value, child = self.values.pop(name)
-        if kind in ("rgb", "spectrum", "float"):
-            return np.broadcast_to(np.asarray(value, dtype=np.float64), 3).copy()
-        if kind == "object" and value.tag == "texture":
-            return value
-        raise child.error(f"{name!r} must be <rgb>, <spectrum value=...>, <float> or a <texture>")
-
-    def objects_of(self, tag):
-        found = [o for o in self.objects if o.tag == tag]
-        self.objects = [o for o in self.objects if o.tag != tag]
-        return found
-
-    def done(self):
-        ignored = _IGNORED.get(self.node.tag, set())
-        for name, (kind, value, child) in self.values.items():
-            if name in ignored:
-                continue
-            raise child.error(f"property {name!r} is not supported by <{self.node.tag} type="
-                              f"{self.node.type!r}>; it reads: {', '.join(self.asked) or 'nothing'}")
-        for obj in self.objects:
-            raise obj.error(f"a nested <{obj.tag}> is not supported inside <{self.node.tag} type="
-                            f"{self.node.type!r}>")
-
-
-def _value(child: Node):
-    tag = child.tag
-    if tag == "float":
-        return parse_float(child)
-    if tag == "integer":
-        text = child.require("value")
-        try:
-            return int(text)
-        except ValueError:
-            raise child.error(f"value={text!r} is not an integer") from None
-    if tag == "boolean":
-        text = child.require("value").strip().lower()
-        if text not in ("true", "false"):
-            raise child.error(f"value={text!r} must be true or false")
-        return text == "true"
-    if tag == "string":
-        return child.require("value")
-    if tag == "rgb":
-        v = parse_numbers(child, child.require("value"), "value", (1, 3))
-        return np.repeat(v, 3) if v.size == 1 else v
-    if tag == "spectrum":
-        if "filename" in child.attrs:
-            raise child.error("spectra from files are not supported: give <rgb> or a constant <spectrum value=...>")
-        text = child.require("value")
-        if ":" in text:
-            raise child.error("sampled spectra (wavelength:value pairs) are not supported: give <rgb> "
-                              "or a constant <spectrum value=...>")
-        return float(parse_numbers(child, text, "value", 1)[0])
-    if tag in ("point", "vector"):
-        return parse_vector(child)
-    if tag == "transform":
-        return parse_transform(child)
-    raise child.error(f"unknown property element <{tag}>")  # pragma: no cover (PROPERTY_TAGS)
-
-
 def _apply(m, points):
     return points @ m[:3, :3].T + m[:3, 3]
-
-
-def _ior(props: _Props, name, default):
-    value = props.get(name, ("float", "string"), default)
-    if isinstance(value, str):
-        key = value.strip().lower()
-        if key not in IOR:
-            raise props.node.error(f"{name}={value!r} is not a known index of refraction; known: "
-                                   f"{', '.join(IOR)} (or a number)")
-        return IOR[key]
-    if not value > 0:
-        raise props.node.error(f"{name} must be > 0; got {value}")
-    return float(value)
 
 
 class _Builder:
@@ -269,12 +118,12 @@ class _Builder:
             raise ref.error(f"cyclic <ref>: {chain}")
         return self.ids[key]
 
-    def props(self, node: Node) -> _Props:
+    def props(self, node: Node) -> Props:
         key = node.attrs.get("id")
         if key is not None:
             self._building.append(key)
         try:
-            return _Props(node, self)
+            return Props(node, self)
         finally:
             if key is not None:
                 self._building.pop()
@@ -492,7 +341,7 @@ class _Builder:
             if kind == "conductor":
                 return self._conductor(node, p)
             if kind == "dielectric":
-                eta = _ior(p, "int_ior", IOR["bk7"]) / _ior(p, "ext_ior", IOR["air"])
+                eta = read_ior(p, "int_ior", IOR["bk7"]) / read_ior(p, "ext_ior", IOR["air"])
                 r = p.color("specular_reflectance", 1.0)
                 t = p.color("specular_transmittance", 1.0)
                 p.done()
@@ -503,7 +352,7 @@ class _Builder:
             if kind == "plastic":
                 rho = p.color("diffuse_reflectance", 0.5)
                 spec = p.color("specular_reflectance", 1.0)
-                eta = _ior(p, "int_ior", IOR["polypropylene"]) / _ior(p, "ext_ior", IOR["air"])
+                eta = read_ior(p, "int_ior", IOR["polypropylene"]) / read_ior(p, "ext_ior", IOR["air"])
                 nonlinear = p.get("nonlinear", ("boolean",), False)
                 p.done()
                 for v, name in ((rho, "diffuse_reflectance"), (spec, "specular_reflectance")):
@@ -767,7 +616,7 @@ class _Builder:
         light = np.full(tris.shape[0], -1)
         k = 0
         while k + 1 < tris.shape[0]:
-            quad = _as_parallelogram(tris[k], tris[k + 1])
+            quad = as_parallelogram(tris[k], tris[k + 1])
             if quad is None:
                 k += 1
                 continue
@@ -908,7 +757,7 @@ class _Builder:
                 image = read_image(path)
             except (ValueError, OSError) as exc:
                 raise node.error(f"cannot read the environment image: {exc}") from None
-            self.environment = EnvironmentMap(envmap_to_mcvar(_unrefine(image), to_world, node) * scale)
+            self.environment = EnvironmentMap(envmap_to_mcvar(unrefine(image), to_world, node) * scale)
             return
         raise node.error(f"<emitter type={kind!r}> is not supported")  # pragma: no cover
 
@@ -962,97 +811,6 @@ class _Builder:
             camera=self.camera,
             render_defaults=dict(self.defaults),
         )
-
-
-def _as_parallelogram(a, b, tol=1e-9):
-    """``(origin, e1, e2)`` if triangles ``a`` and ``b`` share an edge and together form a
-    parallelogram, with ``cross(e1, e2)`` along ``a``'s normal; else None."""
-    atol = tol * (1.0 + max(np.abs(a).max(), np.abs(b).max()))
-    if np.allclose(a[0], b[0], rtol=0, atol=atol) and np.allclose(a[2], b[1], rtol=0, atol=atol):
-        # the split (v0, v1, v2), (v0, v2, v3) of mcvar's builders: origin v0, edges v1 - v0, v3 - v0
-        v0, v1, v2, v3 = a[0], a[1], a[2], b[2]
-        if np.allclose(v1 + v3, v0 + v2, rtol=0, atol=atol) and \
-                np.cross(v1 - v0, v2 - v0) @ np.cross(v2 - v0, v3 - v0) > 0:
-            return v0.copy(), v1 - v0, v3 - v0
-    shared = [(i, j) for i in range(3) for j in range(3) if np.allclose(a[i], b[j], rtol=0, atol=tol * (1 + np.abs(a).max()))]
-    if len(shared) != 2:
-        return None
-    (i0, j0), (i1, j1) = shared
-    x = a[3 - i0 - i1]
-    y = b[3 - j0 - j1]
-    s, t = a[i0], a[i1]
-    scale = 1.0 + max(np.abs(a).max(), np.abs(b).max())
-    if not np.allclose(x + y, s + t, rtol=0, atol=tol * scale):
-        return None
-    e1, e2 = s - x, t - x
-    n_a = np.cross(a[1] - a[0], a[2] - a[0])
-    n_b = np.cross(b[1] - b[0], b[2] - b[0])
-    if n_a @ n_b <= 0:
-        return None                                   # the two triangles face different ways
-    if np.cross(e1, e2) @ n_a < 0:
-        e1, e2 = e2, e1
-    return x.copy(), e1, e2
-
-
-def _unrefine(image):
-    """mcvar's lat-long image back from the refined bitmap ``mcvar.interop.mitsuba`` writes, or ``image``.
-
-    The exporter writes a map of ``H x W`` pixels as ``(k H + 1) x k W``
-    texels: every pixel's column repeated ``k`` times, rows repeated ``k - 1``
-    times with the mean of the two neighbouring rows on each edge, so that
-    Mitsuba's bilinear lookup integrates like mcvar's nearest one. That
-    layout is recognised exactly (to float32 rounding) and undone; any other
-    image is used as it is (Mitsuba interpolates it bilinearly, mcvar looks
-    it up nearest: the same integral over each pixel, not the same values).
-    """
-    img = np.asarray(image, dtype=np.float64)
-    hh, ww = img.shape[:2]
-    for k in range(min(ww, hh - 1), 1, -1):
-        if ww % k or (hh - 1) % k:
-            continue
-        h, w = (hh - 1) // k, ww // k
-        base = img[1::k][:h]                                    # the first inside row of each pixel row
-        cols = base[:, ::k]
-        tol = 1e-6 * max(np.abs(img).max(), 1e-30)
-        if not np.allclose(np.repeat(cols, k, axis=1), base, rtol=0, atol=tol):
-            continue
-        node = np.arange(hh)
-        inside = node % k != 0
-        fine = np.repeat(cols, k, axis=1)
-        if not np.allclose(img[inside], fine[node[inside] // k], rtol=0, atol=tol):
-            continue
-        edge = node[~inside] // k
-        mean = 0.5 * (fine[np.clip(edge - 1, 0, h - 1)] + fine[np.clip(edge, 0, h - 1)])
-        if np.allclose(img[~inside], mean, rtol=0, atol=tol):
-            return cols
-    return img
-
-
-def envmap_to_mcvar(image, to_world, node: Node):
-    """A Mitsuba ``envmap`` image as mcvar's lat-long image (same directions, same radiance).
-
-    Mitsuba looks a world direction ``d`` up at ``u = atan2(x, -z) / (2 pi)``,
-    ``v = acos(y) / pi`` of ``to_world^-1 d``; mcvar at ``phi = atan2(z, x)``
-    (column ``phi W / (2 pi)``), theta from +y. Both have row 0 at +y and
-    azimuth growing the same way, so for a ``to_world`` that rotates about
-    +y by ``alpha`` mcvar's column ``j`` is Mitsuba's column
-    ``j + W / 4 + W alpha / (2 pi)`` (mod W): an exact column roll when
-    that is an integer; anything else is an error.
-    """
-    img = np.asarray(image, dtype=np.float64)
-    width = img.shape[1]
-    m = to_world[:3, :3]
-    alpha = math.atan2(m[0, 2], m[0, 0])
-    expected = np.array([[math.cos(alpha), 0.0, math.sin(alpha)], [0.0, 1.0, 0.0],
-                         [-math.sin(alpha), 0.0, math.cos(alpha)]])
-    if not np.allclose(m, expected, atol=1e-9):
-        raise node.error("an envmap's to_world must be a rotation about +y (mcvar's environment is "
-                         "oriented with +y up)")
-    shift = width / 4.0 + width * alpha / (2.0 * math.pi)
-    if abs(shift - round(shift)) > 1e-6:
-        raise node.error(f"the envmap's rotation about +y must move it by whole columns: width {width} "
-                         f"and angle {math.degrees(alpha):g} deg give a shift of {shift:g} columns")
-    return np.roll(img, -int(round(shift)) % width, axis=1)
 
 
 def scene_fields(root: Node) -> dict:
