@@ -406,6 +406,15 @@ def test_continuous_bsdfs_evaluate_as_in_mitsuba(xml):
 
 
 @needs_mitsuba
+def test_named_indices_of_refraction_are_mitsubas():
+    from mcvar.scenefile import IOR
+
+    for name, value in IOR.items():
+        eta = mi.traverse(mi.load_dict({"type": "dielectric", "int_ior": name, "ext_ior": 1.0}))["eta"]
+        assert eta == pytest.approx(value, abs=1e-6), name
+
+
+@needs_mitsuba
 def test_smooth_conductor_reflectance_equals_mitsubas():
     c = _material('<bsdf type="conductor"><rgb name="eta" value="0.2, 0.9, 1.1"/>'
                   '<rgb name="k" value="3.9, 2.4, 2.2"/></bsdf>')
