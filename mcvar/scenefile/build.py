@@ -385,7 +385,7 @@ class _Builder:
         if eta is not None and material is not None:
             raise node.error("give eta and k, or material, not both")
         if eta is None and material is None:
-            material = "Cr"                           # Mitsuba's default conductor
+            material = "none"                         # Mitsuba 3's default conductor: a perfect mirror
         if material == "none":
             return Mirror(spec)
         if not np.allclose(spec, 1.0):

@@ -29,7 +29,7 @@ IOR = {
 _IGNORED = {
     "film": {"pixel_format", "component_format", "file_format", "banner", "high_quality_edges",
              "sample_border"},
-    "sensor": {"near_clip", "far_clip", "shutter_open", "shutter_close"},
+    "sensor": {"near_clip", "far_clip", "shutter_open", "shutter_close", "focus_distance"},
     "sampler": {"seed", "jitter", "scramble_type", "dimension"},
     "bsdf": set(),
     "emitter": {"sampling_weight"},
