@@ -39,14 +39,17 @@ Scenes
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
-from typing import Callable
+from pathlib import Path
+from typing import Callable, Mapping
 
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
 from .bsdf import Glass, Lambertian, Mirror
 from .geometry import normalize
+from .scenefile import read_scene_file
 
 __all__ = [
     "Camera",
@@ -446,6 +449,13 @@ class Scene:
         Radiant intensity ``I`` (W/sr, linear RGB) emitted uniformly in all
         directions: irradiance ``I cos / r^2`` at distance ``r``, power
         ``4 pi I``.
+    render_defaults : mapping
+        What a scene file says about rendering it (default empty): ``res``
+        ``(width, height)`` of its film, ``spp`` (its sampler's
+        sample_count), ``max_depth`` (None: no limit) and ``rr_depth``.
+        ``mcvar render`` and ``mcvar converge`` use them unless their
+        options say otherwise; :func:`mcvar.integrators.render` does not
+        read them.
     """
 
     name: str
@@ -470,6 +480,7 @@ class Scene:
     description: str = field(default="")
     point_light_position: np.ndarray | None = None
     point_light_intensity: np.ndarray | None = None
+    render_defaults: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
         tri = _frozen(self.triangles).reshape(-1, 3, 3)
@@ -859,21 +870,33 @@ SCENES: dict[str, Callable[..., Scene]] = {
 }
 
 
-def load_scene(name: str, **options) -> Scene:
-    """Build the scene called ``name``.
+def load_scene(name, **options) -> Scene:
+    """Build the scene called ``name``, or read it from a Mitsuba 3 XML file.
 
     Parameters
     ----------
-    name : str
+    name : str or path
         One of ``'cornell'``, ``'cornell-spheres'``, ``'cornell-point'``, ``'checkerboard'``,
-        ``'furnace'``, ``'quad-environment'``.
+        ``'furnace'``, ``'quad-environment'``, ``'cornell-door'``; or the path
+        of a Mitsuba 3 scene file (``.xml``; docs/scene-files.md lists the
+        supported subset).
     **options
-        Passed to the builder (e.g. ``albedo=0.8`` for ``'furnace'``).
+        Passed to the builder (e.g. ``albedo=0.8`` for ``'furnace'``); for a
+        file, values replacing its ``<default>`` entries (Mitsuba's ``-D
+        name=value``).
 
     Returns
     -------
     Scene
-        Fresh read-only arrays on every call.
+        Fresh read-only arrays on every call. A file's film size, sample
+        count and path depth are in ``Scene.render_defaults``.
+
+    Raises
+    ------
+    ValueError
+        An unknown name, or a file mcvar cannot read: the message names the
+        file, the line and the element, and what is supported
+        (:class:`mcvar.scenefile.SceneFileError`).
 
     Examples
     --------
@@ -881,11 +904,104 @@ def load_scene(name: str, **options) -> Scene:
     >>> scene.n_triangles, scene.n_lights
     (32, 1)
     """
+    if isinstance(name, os.PathLike) or (isinstance(name, str) and name not in SCENES
+                                         and (name.lower().endswith(".xml") or os.sep in name)):
+        return _scene_from_fields(read_scene_file(name, **options))
     if not isinstance(name, str):
-        raise TypeError(f"name must be a string, one of {tuple(SCENES)}; got {type(name).__name__}")
+        raise TypeError(f"name must be a string (a scene name, one of {tuple(SCENES)}, or the path of a "
+                        f"Mitsuba 3 .xml file) or an os.PathLike; got {type(name).__name__}")
     if name not in SCENES:
-        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")
+        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)} "
+                         "(or the path of a Mitsuba 3 .xml file)")
     return SCENES[name](**options)
+
+
+def _scene_from_fields(fields: dict) -> Scene:
+    fields = dict(fields)
+    fields["camera"] = Camera(**fields["camera"])
+    return Scene(**fields)
+
+
+def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_depth=None):
+    """Write ``scene`` as a Mitsuba 3 XML file that :func:`load_scene` and Mitsuba 3 both read.
+
+    Parameters
+    ----------
+    scene : Scene
+    path : str or path
+        The ``.xml`` file. Triangle meshes (PLY) and environment images (EXR)
+        go into the folder ``<stem>/`` beside it, named by their content, and
+        the file refers to them by relative names (move the two together).
+    res, spp, max_depth : optional
+        The film size, the sampler's sample count and the path depth the
+        file asks for; default ``scene.render_defaults`` (else 64 x 64, 16
+        spp, no depth limit). ``rr_depth`` is written when the defaults have
+        it.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Notes
+    -----
+    One mapping from Scene to Mitsuba: the dictionary of
+    :func:`mcvar.interop.mitsuba.to_mitsuba` (which refuses, with a
+    ``ValueError`` naming it, whatever has no Mitsuba counterpart of the same
+    model), written by :func:`mcvar.scenefile.write_xml`; the camera as a
+    ``lookat`` of ``scene.camera`` (exact, where a matrix would be rounded to
+    float32). ``ray_epsilon`` and the description travel in a ``<!-- mcvar
+    ... -->`` comment that Mitsuba ignores. ``load_scene(save_scene(s))``
+    renders the same image as ``s`` with the same seed (tests/test_scenefile.py).
+    Needs Mitsuba 3 installed (``mcvar[mitsuba]``): the exporter builds its
+    transforms with it.
+    """
+    # save_scene is the one function of this module above layer 4: it writes through the
+    # exporter of mcvar.interop (layer 5), imported here, when called (tests/test_layering.py)
+    from .interop.mitsuba import to_mitsuba
+    from .scenefile import LookAt, Rotate, write_xml
+
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a mcvar.scene.Scene; got {type(scene).__name__}")
+    path = Path(path)
+    if path.suffix.lower() != ".xml":
+        raise ValueError(f"path must name an .xml file; got {str(path)!r}")
+    defaults = dict(scene.render_defaults)
+    res = defaults.get("res", 64) if res is None else res
+    spp = defaults.get("spp", 16) if spp is None else spp
+    max_depth = defaults.get("max_depth") if max_depth is None else max_depth
+    folder = path.parent / path.stem
+    d = to_mitsuba(scene, res=res, spp=spp, max_depth=max_depth, folder=folder)
+    cam = scene.camera
+    d["sensor"]["to_world"] = LookAt(tuple(cam.position), tuple(cam.look_at), tuple(cam.up))
+    if "rr_depth" in defaults and "max_depth" in d["integrator"]:
+        d["integrator"]["rr_depth"] = int(defaults["rr_depth"])
+    env = d.get("environment")
+    if env is not None and "to_world" in env:
+        m = np.asarray(env["to_world"].matrix, dtype=np.float64)
+        angle = math.degrees(math.atan2(m[0, 2], m[0, 0]))
+        if not np.allclose(m[:3, :3], _y_rotation(angle), atol=1e-6):
+            raise ValueError("the exporter's environment transform is not a rotation about +y")
+        # the exporter builds it in float32: its angle to 1e-4 degrees (whole degrees in practice)
+        env["to_world"] = Rotate((0.0, 1.0, 0.0), float(round(angle, 4)))
+    for value in d.values():
+        if isinstance(value, dict) and isinstance(value.get("filename"), str):
+            value["filename"] = os.path.relpath(value["filename"], path.parent).replace(os.sep, "/")
+    meta = f'mcvar ray_epsilon="{scene.ray_epsilon!r}"'
+    if env is not None and env.get("type") == "constant":
+        meta += f' environment_size="{scene.environment.height} {scene.environment.width}"'
+    if scene.description:
+        meta += ' description="' + scene.description.replace('"', "'").replace("--", "-") + '"'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(write_xml(d, comments=[f"{scene.name}: written by mcvar.scene.save_scene", meta]),
+                    encoding="utf-8")
+    return path
+
+
+def _y_rotation(angle_deg):
+    t = math.radians(angle_deg)
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 # --------------------------------------------------------------------------
@@ -974,3 +1090,37 @@ def cornell_door_scene(slit: float = 20.0, wall_z: float = 400.0, height: float 
 
 SCENES["cornell-door"] = cornell_door_scene
 __all__ += ["cornell_door_scene"]
+
+
+# --------------------------------------------------------------------------
+# the built-in scenes as Mitsuba 3 files (issue 23): mcvar/data/scenes/<name>.xml
+
+#: Where the built-in scenes are shipped as Mitsuba 3 XML (package data).
+SCENE_FILES_DIR = Path(__file__).resolve().parent / "data" / "scenes"
+
+
+def scene_file(name: str) -> Path:
+    """The shipped Mitsuba 3 file of the built-in scene ``name`` (``mcvar/data/scenes/<name>.xml``).
+
+    ``load_scene(scene_file(name))`` renders the image of ``load_scene(name)``
+    with the same seed, up to the float32 vertices of its PLY meshes; ``mitsuba
+    scene_file(name)`` renders it in Mitsuba 3. Written by
+    :func:`write_scene_files`.
+    """
+    if not isinstance(name, str) or name not in SCENES:
+        raise ValueError(f"name must be a built-in scene, one of {', '.join(SCENES)}; got {name!r}")
+    path = SCENE_FILES_DIR / f"{name}.xml"
+    if not path.is_file():
+        raise ValueError(f"{path} is missing: run mcvar.scene.write_scene_files() in a source checkout")
+    return path
+
+
+def write_scene_files(folder=None, *, res: int = 64, spp: int = 16) -> list:
+    """Write every built-in scene of :data:`SCENES` with :func:`save_scene` (default into
+    :data:`SCENE_FILES_DIR`), at ``mcvar render``'s default film and sample count.
+    Returns the paths written."""
+    folder = SCENE_FILES_DIR if folder is None else Path(folder)
+    return [save_scene(SCENES[name](), folder / f"{name}.xml", res=res, spp=spp) for name in SCENES]
+
+
+__all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR"]
