@@ -9,8 +9,8 @@ The lecture's 'Bidirectional Path Tracing' slides: trace a camera subpath
 * ``s = 0``: the camera subpath hits an emitter (path tracing's BSDF-sampled
   emission);
 * ``s = 1``: a camera vertex joined to the light subpath's origin ``y_0``
-  (next-event estimation; point lights are reached only this way and by
-  ``t = 1``);
+  (next-event estimation; point lights are reached only this way: ``(1,
+  1)``, a point light seen by the camera, is left out as in path tracing);
 * ``s, t >= 2``: ``y_{s-1}`` and ``z_{t-1}`` joined by a shadow ray;
 * ``t = 1``: a light vertex joined to the pinhole and splatted (light
   tracing).

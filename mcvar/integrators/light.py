@@ -34,7 +34,9 @@ Measures and conventions (Veach 1997, ch. 8 and 10; pbrt-v4's BDPT):
   Connections to the pinhole (``t = 1``) carry ``We / pdf`` with the
   film-wide importance ``We = 1 / (A cos^4 theta)``, so that with one light
   path per camera path (``W H spp`` of them) the splat sum divided by spp
-  is the image.
+  is the image. The origin of a point-light path is not joined to the
+  pinhole (strategy ``(1, 1)``): a point light has no radiance and the
+  camera cannot see it, as in path tracing (issue 26).
 
 Light tracing is unbiased for every path whose camera end can be connected
 to: a path whose first camera vertex is a delta vertex (the camera sees a
@@ -394,6 +396,12 @@ def _connect_camera(ctx, L, s, mis_weight=None):
     il = np.flatnonzero(L.length >= s)
     if s >= 2:
         il = il[~ctx.delta_mat[L.mat[s - 1, il]]]
+    else:
+        # a point light is not seen by the camera (no area, no radiance: a
+        # camera ray hits it with probability zero, as in path tracing,
+        # Mitsuba 3 and pbrt-v4); splatting I / r^2 at its pixel would add
+        # an image that no other method renders (issue 26)
+        il = il[L.point[il] < 0]
     if il.size == 0:
         return il, il, np.zeros((0, 3)), np.zeros(0)
     q = s - 1
