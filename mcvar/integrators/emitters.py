@@ -713,7 +713,8 @@ def sample_le(scene, u_pos, u_dir):
     Parameters
     ----------
     scene : mcvar.scene.Scene
-        With at least one emitter (the environment is not sampled here).
+        With at least one emitter (an environment map counts: its origins
+        lie on a disk beyond the scene, :class:`LightOrigins`).
     u_pos, u_dir : ndarray, shape (n, 2)
         Uniform numbers in [0, 1]^2.
 
@@ -731,7 +732,8 @@ def sample_le(scene, u_pos, u_dir):
         Solid-angle density of the direction (``cos theta / pi`` one-sided,
         half that two-sided, ``1 / (4 pi)`` for a point light).
     light : ndarray of int, shape (n,)
-        The emitting primitive, or ``-1 - j`` for point light ``j``.
+        The emitting primitive, ``-1 - j`` for point light ``j``, or
+        ``-1 - P`` (``P`` point lights) for the environment map.
 
     Notes
     -----
