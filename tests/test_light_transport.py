@@ -486,10 +486,12 @@ def test_sample_le_estimates_the_emitted_power_and_pdf_le_matches(name):
 # ---------------------------------------------------------------------------
 # Environment maps as light-path origins (issue 26)
 
-def _environment_room(env):
+def _environment_room(env, point_light=None):
     """A floor and a standing panel (two-sided Lambertian, interreflection and
     shadows) under ``env``, seen obliquely: the camera sees the map above the
-    floor's far edge and below its near edge, and both surfaces."""
+    floor's far edge and below its near edge, and both surfaces. With
+    ``point_light`` (an RGB intensity) also a point light above the floor, so
+    that the map is one light among two (its choice probability below 1)."""
     import dataclasses
 
     from mcvar.scene import _quad_triangles
@@ -501,13 +503,16 @@ def _environment_room(env):
     return dataclasses.replace(
         base, name="environment-room", triangles=tris, prim_material=[0] * n, prim_emission=np.zeros((n, 3)),
         prim_two_sided_emission=[False] * n, prim_light=[-1] * n, prim_group=[0] * n, environment=env,
-        camera=Camera((0.3, 0.7, -1.6), (0.0, 0.15, 0.0), (0.0, 1.0, 0.0), 60.0))
+        camera=Camera((0.3, 0.7, -1.6), (0.0, 0.15, 0.0), (0.0, 1.0, 0.0), 60.0),
+        point_light_position=np.zeros((0, 3)) if point_light is None else [(-0.3, 0.5, -0.4)],
+        point_light_intensity=np.zeros((0, 3)) if point_light is None else [point_light])
 
 
 @pytest.mark.parametrize("integrator", ["light", "bdpt"])
 def test_light_paths_from_an_environment_agree_with_path(integrator):
     """Light subpaths that start at a constant and at a sparse map (small
-    bright disks on a dim background, pbrt-v4's infinite-light SampleLe) give
+    bright disks on a dim background, pbrt-v4's infinite-light SampleLe; a
+    point light beside it, so the map is chosen with probability < 1) give
     path tracing's image: image means and 8 x 8 blocks per channel, at max_depth
     2 and unlimited, 8 independent replicates each side, 5 sigma Sidak-corrected
     over every comparison. Path tracing samples the map by importance in NEE,
@@ -521,7 +526,7 @@ def test_light_paths_from_an_environment_agree_with_path(integrator):
     spp = {"path": 16, "light": 32, "bdpt": 8}
     z_all = []
     for e, env in enumerate((constant((1.0, 0.8, 0.6)), sparse_lights(radiance=200.0, background=0.05))):
-        scene = _environment_room(env)
+        scene = _environment_room(env, point_light=(6.0, 5.0, 4.0))
         for depth in (2, None):
             imgs = {}
             for k, method in enumerate(("path", integrator)):
@@ -579,3 +584,83 @@ def test_max_depth_counts_segments_as_mitsuba_does():
                 assert np.all(imgs[method][:, ~near] == 0.0), method
     z = np.concatenate(z_all)
     assert np.all(np.abs(z) <= _sidak_z(z.size)), np.abs(z).max()
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+@pytest.mark.parametrize("heuristic,mis", [("power", True), ("balance", True), ("power", False)])
+def test_mis_weights_sum_to_one_on_paths_to_the_environment(heuristic, mis, k):
+    """Veach's eq. 10.6 for paths that end at infinity: camera -> (k - 1
+    bounces on the floor and the panel) -> the environment map, made by camera
+    subpaths that escape; each split s = 0..k is rebuilt as subpaths (``y_0`` a
+    direction, its densities corrected as ``light_subpath`` does) and weighted
+    by the BDPT code: the k + 1 strategies (the escape, NEE to the map, light
+    vertices joined to camera vertices, light tracing; for k = 1 the map seen
+    directly, ``(1, 1)``) weigh each path to 1 exactly. A point light makes
+    the map's choice probability less than 1."""
+    import dataclasses
+
+    from mcvar.envmap import sky_with_sun
+    from mcvar.integrators import bdpt, light as lt
+    from mcvar.integrators.emitters import LightOrigins
+    from mcvar.tracer import Tracer
+
+    scene = dataclasses.replace(_environment_room(sky_with_sun()), point_light_position=[(0.0, 1.0, -0.5)],
+                                point_light_intensity=[(1.0, 1.0, 1.0)])
+    tracer = Tracer(scene)
+    em = LightOrigins(scene)
+    assert 0.0 < em.pmf[em.env_index] < 1.0
+    res = (8, 8)
+    rng = np.random.default_rng(3 + k)
+    n0 = 6000
+    C = lt.camera_subpath(scene, tracer, res, rng.integers(0, 64, n0), rng.random((n0, 2)), k + 1, rng)
+    idx = np.flatnonzero(C.length == k + 1)
+    idx = idx[C.infinite[k, idx]]
+    assert idx.size > 50
+    n = idx.size
+    towards = C.ng[k, idx]
+    far = 1e3 * em.radius
+    cam = [C.p[i, idx] for i in range(k)]                          # z_0 .. z_{k-1}
+    pts = np.stack([cam[-1] + far * towards] + cam[::-1])          # y_0 (far along w), z_{k-1} .. z_0
+    prims = np.stack([np.full(n, -1)] + [C.prim[i, idx] for i in range(k - 1, 0, -1)] + [np.full(n, -1)])
+    ctx = lt._Context(scene, tracer, em, res, heuristic, mis)
+    flips = lt._flips(scene)
+    total, counted = np.zeros(n), np.zeros(n, dtype=int)
+    for s in range(0, k + 1):
+        t = k + 1 - s
+        lsub = None
+        if s:
+            lev = _chain(scene, tracer, lt, pts[:s], prims[:s], lambda w: np.ones(n), False, towards)
+            lev.levels[0]["infinite"][:] = True
+            lev.levels[0]["ng"][:] = towards
+            lev.levels[0]["pdf_fwd"][:] = em.env_pdf_origin(towards)
+            if s >= 2:
+                lt._at_infinity(lev, np.arange(n), em.env_pdf_pos, 0.0)
+            lsub = lev.stack(np.full(n, s), np.full(n, -1), np.full(n, -1), 0)
+        lev = _chain(scene, tracer, lt, pts[::-1][:t], prims[::-1][:t],
+                     lambda w: scene.camera.pdf_We(w, res)[1], False, np.zeros((n, 3)))
+        if s == 0:                          # z_k is the map: a direction, solid-angle density from z_{k-1}
+            zl, zi = lev.levels[k - 1], lev.levels[k]
+            if k == 1:
+                pdf_dir = scene.camera.pdf_We(towards, res)[1]
+            else:
+                wo, _ = lt._unit(cam[k - 2] - cam[k - 1])
+                _, pdf_dir, _ = lt._bsdf_eval(scene, flips, zl["mat"], zl["ng"], wo, towards)
+            zi["pdf_fwd"][:] = pdf_dir
+            zi["infinite"][:] = True
+            zi["surface"][:] = False
+            zi["ng"][:] = towards
+            zi["mat"][:] = -1
+            zi["prim"][:] = -1
+            zi["delta"][:] = False
+        csub = lev.stack(np.full(n, t), np.full(n, -1), C.pixel[idx], 0)
+        if s == 0:
+            ic, _, w = bdpt._connect_emitter(ctx, csub, t)
+        elif t == 1:
+            ic, _, _, w = lt._connect_camera(ctx, lsub, s, bdpt._mis_weight)
+        else:
+            ic, _, w = bdpt._connect_inner(ctx, lsub, csub, s, t)
+        total[ic] += w
+        counted[ic] += 1
+    ok = counted == k + 1         # light tracing can miss a path whose z_1 is on the frame's edge by rounding
+    assert ok.mean() > 0.95, np.unique(counted, return_counts=True)
+    np.testing.assert_allclose(total[ok], 1.0, rtol=1e-9)
