@@ -212,3 +212,31 @@ def test_one_origin_estimates_the_total_power_exactly(scene):
     np.testing.assert_allclose(est * origins.pmf[k][:, None], origins.power_rgb[k] * (origins.pmf[k] > 0)[:, None],
                                rtol=1e-9)
     assert np.all(total > 0)
+
+
+def test_environment_origins_lie_on_the_disk_that_covers_the_scene():
+    """An environment origin is a point of the disk of radius r (the scene's
+    bounding sphere) perpendicular to its direction, r beyond the centre, and
+    its ray runs along -w: every such ray passes within r of the centre, so
+    it covers every primitive. ``pdf_le`` gives 0 for a point off that disk."""
+    scene = mixed_emitters_scene(sky_with_sun())
+    origins = LightOrigins(scene)
+    corners = scene.triangles.reshape(-1, 3)
+    assert np.all(np.linalg.norm(corners - origins.center, axis=1) <= origins.radius * (1 + 1e-12))
+    rng = np.random.default_rng(SEED)
+    n = 20000
+    p, w, nrm, le, pdf_pos, pdf_dir, light = sample_le(scene, rng.random((n, 2)), rng.random((n, 2)))
+    env = light == -1 - scene.n_point_lights
+    assert 0.05 < env.mean() < 0.95
+    towards = -w[env]
+    off = p[env] - origins.center - origins.radius * towards
+    np.testing.assert_allclose(np.einsum("ij,ij->i", off, towards), 0.0, atol=1e-12 * origins.radius)
+    assert np.all(np.linalg.norm(off, axis=1) <= origins.radius * (1 + 1e-12))
+    # uniform on the disk: the mean squared distance from its centre is r^2 / 2 (5 SE)
+    r2 = np.einsum("ij,ij->i", off, off) / origins.radius ** 2
+    assert abs(r2.mean() - 0.5) < 5 * r2.std() / np.sqrt(r2.size)
+    np.testing.assert_allclose(pdf_pos[env], origins.pmf[origins.env_index] / (np.pi * origins.radius ** 2),
+                               rtol=1e-12)
+    moved = p[env] + 0.1 * origins.radius * towards
+    got_pos, _ = pdf_le(scene, light[env], moved, w[env])
+    np.testing.assert_array_equal(got_pos, 0.0)
