@@ -3,7 +3,7 @@
 The lecture's 'Photon Mapping' slide: "trace particles from the light,
 deposit 'photons' in a KD-tree". Two estimators built on the same parts:
 
-* :func:`trace_photons` emits photons from the area lights and point lights
+* :func:`trace_photons` emits photons from the area lights, point lights and an environment map
   (:func:`~mcvar.integrators.emitters.sample_le`: an emitter chosen by power,
   a uniform point and a cosine-weighted direction, or a uniform direction
   from a point light),
@@ -57,7 +57,7 @@ from .._validation import as_rng, check_count, check_positive
 from ..geometry import Frame
 from ..scene import Scene
 from ..tracer import Tracer
-from .emitters import sample_le
+from .emitters import LightOrigins, sample_le
 from .film import BatchJob, BatchResult, camera_result
 from .registry import Method, register
 from .stream import camera_rays
@@ -81,23 +81,22 @@ PAIRS_PER_CHUNK = 1 << 19
 def check_photon_scene(scene: Scene) -> None:
     """Raise ``ValueError`` for what photon emission here cannot handle.
 
-    Photons leave the scene's area lights and point lights
-    (:func:`~mcvar.integrators.emitters.sample_le`); emission of primitives
-    that belong to no area light (e.g. the furnace's glowing sphere) and
-    environment maps are not emitted, so they would be missing from the
-    photon map.
+    Photons leave the area lights, point lights and an environment map (from
+    a disk that covers the scene, pbrt-v4's infinite lights; issue 26) by
+    :func:`~mcvar.integrators.emitters.sample_le`. Emitting primitives that
+    belong to no area light (the furnace's glowing sphere) are refused: the
+    density estimate on such closed curved emitters is not validated here.
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a mcvar.scene.Scene; got {type(scene).__name__}")
-    if scene.n_lights + scene.n_point_lights == 0:
-        raise ValueError(f"scene {scene.name!r} has no area light or point light to emit photons from")
+    if LightOrigins(scene).empty:
+        raise ValueError(f"scene {scene.name!r} has no emitter to emit photons from (no area light, "
+                         "point light or environment map with radiance)")
     stray = np.any(scene.prim_emission > 0, axis=1) & (scene.prim_light < 0)
     if np.any(stray):
         raise ValueError(f"scene {scene.name!r} has {int(stray.sum())} emitting primitive(s) that belong to "
-                         "no area light; photons are emitted only from area and point lights")
-    if scene.environment is not None:
-        raise ValueError(f"scene {scene.name!r} has an environment map; photons are emitted only from "
-                         "area and point lights")
+                         "no area light; photons are emitted only from area lights, point lights and "
+                         "environment maps")
 
 
 # ---------------------------------------------------------------------------
@@ -188,7 +187,7 @@ def trace_photons(scene: Scene, n_photons: int, *, rng=None, tracer: Tracer | No
     Parameters
     ----------
     scene : Scene
-        With area lights only (:func:`check_photon_scene`).
+        With some emitter (:func:`check_photon_scene`).
     n_photons : int
         Photons emitted in total (their power is divided by it).
     rng : None, int, SeedSequence or Generator
@@ -491,8 +490,8 @@ def check_photon_options(options) -> None:
 
 
 def check_photon_method_scene(scene, options) -> None:
-    """``check_scene`` of ``photon`` and ``sppm``: emission only from area lights, no
-    environment, no mixed delta/non-delta materials, valid options."""
+    """``check_scene`` of ``photon`` and ``sppm``: some emitter, no mixed
+    delta/non-delta materials, valid options."""
     check_photon_options(options)
     check_photon_scene(scene)
     mixed = [f"{scene.material_names[m]!r} ({type(scene.materials[m]).__name__})"
