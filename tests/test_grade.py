@@ -232,3 +232,99 @@ def test_lambertian_solution_matches_library():
     ref = LambertianSolution(0.8)
     np.testing.assert_allclose(ref.eval(wo, wi), Lambertian(0.8).eval(wo, wi)[:, 0], rtol=1e-14)
     np.testing.assert_allclose(ref.pdf(wo, wi), Lambertian(0.8).pdf(wo, wi), rtol=1e-14)
+
+
+# --------------------------------------------------------------------------
+# the graders added for notebooks 07-12, on independent implementations
+
+def test_grade_dielectric_accepts_the_library_glass_and_rejects_schlick_and_constant_fresnel():
+    from mcvar.bsdf import Glass
+    assert grade.grade_dielectric(Glass(1.5), 1.5, rng=3, verbose=False).passed   # a second implementation
+    r = grade.grade_dielectric(Glass(1.5, fresnel="schlick"), 1.5, rng=3, verbose=False)
+    assert r.status == "FAIL" and "exact Fresnel" in r.reason                       # an approximation, 8 sigma off
+    r = grade.grade_dielectric(Glass(1.5, fresnel=0.1), 1.5, rng=3, verbose=False)
+    assert r.status == "FAIL" and "0 deg" in r.reason
+
+
+def test_grade_dielectric_rejects_lost_energy_and_wrong_directions():
+    glass = bugs.FresnelGlass(1.5)
+
+    class Absorbing:
+        def sample(self, wo, u):
+            wi, w, p = glass.sample(wo, u)
+            return wi, 0.9 * w, p
+
+    class NoRefraction:
+        def sample(self, wo, u):
+            wi, w, p = glass.sample(wo, u)
+            return wo * np.array([-1.0, 1.0, -1.0]), w, p
+
+    r = grade.grade_dielectric(Absorbing(), 1.5, rng=4, verbose=False)
+    assert r.status == "FAIL" and "weights must be 1" in r.reason
+    r = grade.grade_dielectric(NoRefraction(), 1.5, rng=4, verbose=False)
+    assert r.status == "FAIL" and "reflected" in r.reason
+
+
+def _uniform_walk(x, rng):
+    # a symmetric random walk on the torus: the uniform density is invariant, every move accepted
+    return (x + 0.1 * np.random.default_rng(rng).standard_normal(x.shape)) % 1.0
+
+
+def test_grade_chain_on_an_invariant_and_a_drifting_kernel():
+    uniform = lambda x: np.ones(x.shape[0])
+    ok = grade.grade_chain(_uniform_walk, lambda u: u, uniform, steps=5, n=50_000, rng=5, verbose=False)
+    assert ok.passed, ok
+    shrink = lambda x, rng: 0.9 * x                                 # drifts towards the corner
+    bad = grade.grade_chain(shrink, lambda u: u, uniform, steps=5, n=50_000, rng=5, verbose=False)
+    assert bad.status == "FAIL" and "no longer follow" in bad.reason
+    stuck = grade.grade_chain(lambda x, rng: x, lambda u: u, uniform, steps=3, n=1000, rng=5, verbose=False)
+    assert stuck.status == "FAIL" and "ever moved" in stuck.reason
+
+
+def test_grade_coverage_of_iid_error_bars():
+    h = np.random.default_rng(6).normal(0.5, 1.0, size=(400, 200))
+    iid = lambda x: x.std(ddof=1) / math.sqrt(x.size)
+    assert grade.grade_coverage(iid, h, 0.5, verbose=False).passed
+    r = grade.grade_coverage(lambda x: 0.5 * iid(x), h, 0.5, verbose=False)
+    assert r.status == "FAIL" and "too narrow" in r.reason
+    r = grade.grade_coverage(lambda x: 3.0 * iid(x), h, 0.5, verbose=False)
+    assert r.status == "FAIL" and "too wide" in r.reason
+
+
+def test_exercise_harnesses_match_closed_forms():
+    # the Jacobi exercise's exact radiosities solve B = E + rho F B; the photon value is f E(x0)
+    b = exercises.JACOBI_EXACT
+    np.testing.assert_allclose(b, exercises.JACOBI_E + exercises.JACOBI_RHO * (exercises.JACOBI_F @ b), rtol=1e-14)
+    assert exercises.PHOTON_EXACT == pytest.approx(0.6 / math.pi * 3.0 * (2.0 / 3.0) * 1.3, rel=1e-15)
+    # an AR(1) series with phi = 0.9 has lag-1 autocorrelation 0.9 and unit variance
+    h = exercises.correlated_series(50, 4000, rng=7) - 0.5
+    assert np.mean(h[:, 1:] * h[:, :-1]) / np.mean(h * h) == pytest.approx(0.9, abs=0.01)
+    assert np.var(h) == pytest.approx(1.0, abs=0.05)
+
+
+def test_find_the_bug_classes_render_without_nan_and_are_self_consistent():
+    """The bugs are subtle: no NaN, no failed weight check, only the independent checks see them."""
+    from mcvar.testing import check_weight_consistency
+    ggx = bugs.GGXReflection(0.3)
+    wo = np.array([0.3, 0.95, 0.0]) / np.linalg.norm([0.3, 0.95, 0.0])
+    assert check_weight_consistency(ggx, wo, n=5000, rng=8).passed
+    d = bugs.LatLongMap(bugs.BUG_MAP).sample(np.random.default_rng(9).random((1000, 2)))
+    assert np.all(np.isfinite(d)) and np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    wi, w, p = bugs.FresnelGlass(1.5).sample(wo, np.random.default_rng(10).random((1000, 2)))
+    assert np.all(w == 1.0) and np.all(np.isfinite(wi))
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: grade.grade_dielectric(object(), 1.5), "sample"),
+    (lambda: grade.grade_dielectric(bugs.FresnelGlass(), -1.0), "eta"),
+    (lambda: grade.grade_dielectric(bugs.FresnelGlass(), 1.5, degrees=(95.0,)), "degrees"),
+    (lambda: grade.grade_dielectric(bugs.FresnelGlass(), 1.5, n=0), "n"),
+    (lambda: grade.grade_chain(None, lambda u: u, lambda x: x), "step"),
+    (lambda: grade.grade_chain(_uniform_walk, lambda u: u, lambda x: x, steps=0), "steps"),
+    (lambda: grade.grade_coverage(lambda h: 1.0, np.zeros((5, 10)), 0.0), "series"),
+    (lambda: grade.grade_coverage(lambda h: 1.0, np.zeros((40, 10)), 0.0, level=1.5), "level"),
+    (lambda: grade.grade_coverage(lambda h: 1.0, np.full((40, 10), np.nan), 0.0), "series"),
+])
+def test_bad_arguments_of_the_new_graders_raise(call, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        call()

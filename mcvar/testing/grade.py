@@ -701,8 +701,8 @@ def grade_dielectric(glass, eta: float, *, n: int = 20_000, degrees=(0.0, 30.0, 
     Parameters
     ----------
     glass : object
-        With ``sample(wo, u) -> (wi, weight, pdf)`` (``wo`` one direction, ``u``
-        of shape (n, 2)).
+        With ``sample(wo, u) -> (wi, weight, pdf)`` (``wo`` of shape (n, 3), all
+        rows equal, ``u`` of shape (n, 2)), e.g. :class:`mcvar.bsdf.Glass`.
     eta : float
         Inside index relative to outside.
     n : int
@@ -736,7 +736,7 @@ def grade_dielectric(glass, eta: float, *, n: int = 20_000, degrees=(0.0, 30.0, 
             wo = np.array([np.sin(t), side * np.cos(t), 0.0])
             where = f"wo {deg:g} deg from the normal {'outside' if side > 0 else 'inside the glass'}"
             u = g.random((n, 2))
-            out = s(wo, u)
+            out = s(np.tile(wo, (n, 1)), u)
             if not isinstance(out, tuple) or len(out) < 3:
                 return False, f"sample(wo, u) must return (wi, weight, pdf); got {type(out).__name__}", tuple(checks)
             wi = np.asarray(out[0], dtype=np.float64).reshape(n, 3)
