@@ -220,6 +220,7 @@ def test_grade_pixel_sampler_rejects_index_past_end():
     (lambda: grade.grade_sampler(lambda n, rng: None, 10, net=3), "net"),
     (lambda: exercise("99.nothing", None), "name"),
     (lambda: exercise("01.jittered"), "argument"),
+    (lambda: exercise("12.envmap_pdf", object()), "sample"),
 ])
 def test_bad_grader_arguments_raise(call, match):
     with pytest.raises((ValueError, TypeError), match=match):

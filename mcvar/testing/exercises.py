@@ -589,6 +589,13 @@ _register(Exercise(
 # --------------------------------------------------------------------------
 # 12 find the bug
 
+def _method(obj, name):
+    fn = getattr(obj, name, None)
+    if not callable(fn):
+        raise TypeError(f"expected an object with a callable {name}(...); got {type(obj).__name__}")
+    return fn
+
+
 def _stub_subclass(base, method, *args):
     cls = type(f"My{base.__name__}", (base,), {method: lambda self, *a, **k: _not_attempted()})
     return (cls(*args),)
@@ -610,7 +617,8 @@ _register(Exercise(
 _register(Exercise(
     "12.envmap_pdf", "Find the bug: the environment map's pdf", "Creating A PDF (solid angle)",
     ("envmap",),
-    lambda envmap, verbose=True: grade_warp(envmap.sample, envmap.pdf, "sphere", n=200_000, rng=1203,
+    lambda envmap, verbose=True: grade_warp(_method(envmap, "sample"), _method(envmap, "pdf"), "sphere",
+                                            n=200_000, rng=1203,
                                             name="12.envmap_pdf", verbose=verbose),
     stub=lambda: _stub_subclass(bugs.LatLongMap, "pdf", bugs.BUG_MAP)))
 
