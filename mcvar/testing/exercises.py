@@ -41,7 +41,7 @@ from .grade import (GradeResult, grade_chain, grade_coverage, grade_dielectric, 
 
 __all__ = ["Exercise", "EXERCISES", "exercise", "furnace_walk", "mis_estimate", "bdpt_estimate",
            "light_tracing_estimate", "large_step_chain", "correlated_series", "photon_estimate",
-           "jacobi_solve", "EXERCISE_MAP", "RHO", "MIS_EXPONENT", "MIS_EXACT"]
+           "jacobi_solve", "bounce_furnace", "EXERCISE_MAP", "RHO", "MIS_EXPONENT", "MIS_EXACT", "LAB_EXACT"]
 
 
 def _not_attempted(*args, **kwargs):
@@ -584,6 +584,60 @@ _register(Exercise(
     ("step",),
     lambda step, verbose=True: grade_values(lambda: jacobi_solve(step), (), JACOBI_EXACT, rtol=1e-9,
                                             name="09.jacobi", verbose=verbose)))
+
+
+# --------------------------------------------------------------------------
+# 11 the lab: a furnace, its exact radiance and a cosine-weighted bounce
+
+#: The furnace of exercise 11.cosine_bounce: albedo, emission and the number of vertices of every path.
+LAB_RHO, LAB_EMISSION, LAB_DEPTH = 0.5, 1.0, 8
+LAB_EXACT = LAB_EMISSION * (1.0 - LAB_RHO ** LAB_DEPTH) / (1.0 - LAB_RHO)
+
+
+def bounce_furnace(sample_bounce, n, rng=None):
+    """Mean radiance of ``n`` furnace paths of :data:`LAB_DEPTH` vertices whose bounces
+    the student samples.
+
+    Inside a closed diffuse sphere of albedo :data:`LAB_RHO` emitting
+    :data:`LAB_EMISSION` (notebook 11's furnace, one channel), each path adds
+    the emission at each of its vertices and multiplies its throughput by
+    ``f cos / pdf`` with ``f = rho / pi`` and ``(cos, pdf) = sample_bounce(u)``.
+    No roulette: the exact value is ``L_e (1 - rho^D) / (1 - rho)``
+    (:data:`LAB_EXACT`).
+    """
+    g = as_rng(rng)
+    beta = np.ones(n)
+    total = np.zeros(n)
+    for _ in range(LAB_DEPTH):
+        total += beta * LAB_EMISSION
+        cos, pdf = sample_bounce(g.random(n))
+        cos, pdf = np.asarray(cos, dtype=np.float64), np.asarray(pdf, dtype=np.float64)
+        if cos.shape != (n,) or pdf.shape != (n,):
+            raise ValueError(f"sample_bounce(u) must return cos and pdf of shape ({n},); got {cos.shape}, {pdf.shape}")
+        beta = beta * np.where(pdf > 0, LAB_RHO / math.pi * cos / np.where(pdf > 0, pdf, 1.0), 0.0)
+    return float(total.mean())
+
+
+_register(Exercise(
+    "11.cosine_bounce", "Cosine-weighted bounces in the furnace", "Lambertian Material / Monte Carlo Cosine Sampling",
+    ("sample_bounce",),
+    lambda sample_bounce, verbose=True: grade_estimator(lambda n, rng: bounce_furnace(sample_bounce, n, rng),
+                                                        LAB_EXACT, n=256, replicates=32, variance=0.0, rng=1101,
+                                                        name="11.cosine_bounce", verbose=verbose)))
+
+#: Exercise 11.furnace_exact: emission, albedo and maximal number of path vertices (0: unlimited).
+_FURNACE_LE = np.array([1.0, 0.5, 2.0, 1.0, 3.0])
+_FURNACE_RHO = np.array([0.2, 0.5, 0.9, 0.0, 0.5])
+_FURNACE_DEPTH = np.array([0, 0, 0, 4, 3])
+#: By hand: L_e / (1 - rho) unlimited; L_e (1 + rho + ... + rho^(D-1)) for D vertices.
+_FURNACE_VALUES = np.array([1.25, 1.0, 20.0, 1.0, 3.0 * 1.75])
+
+_register(Exercise(
+    "11.furnace_exact", "The furnace's exact radiance", "Review: The Rendering Equation / Bias & Consistency",
+    ("furnace_radiance",),
+    lambda furnace_radiance, verbose=True: grade_values(furnace_radiance, (_FURNACE_LE, _FURNACE_RHO, _FURNACE_DEPTH),
+                                                        _FURNACE_VALUES, rtol=1e-12, name="11.furnace_exact",
+                                                        verbose=verbose)))
 
 
 # --------------------------------------------------------------------------
