@@ -15,7 +15,7 @@ LAYERS = {
     "discrepancy": 2, "warps": 2, "optics": 2, "piecewise": 2,
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
     "scenefile": 3.5,
-    "examples": 4,
+    "examples": 4, "lab_renderer": 4,
     "scene": 4, "tracer": 4,
     "mcmc": 4,
     "integrators": 5, "interop": 5,
@@ -31,7 +31,7 @@ LAYERS = {
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
-    "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
+    "testing": ["_domains", "_chi2", "checks", "mutants", "bugs", "grade", "exercises", "__init__"],
     "scenefile": ["xml", "mesh", "props", "lights", "build", "write", "__init__"],
     "interop": ["mitsuba", "__init__"],
     "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "light", "bdpt", "pssmlt", "radiosity", "photon", "sppm", "driver", "__init__"],
