@@ -475,6 +475,7 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
        Simulation", PhD thesis, Stanford University, 1997, sec. 1.4.4, 2.4.3.
     """
+    seed = check_count(seed, "seed", allow_zero=True)
     settings = dict(QUICK if quick else DEFAULT)
     for name, value in (("res", res), ("replicates", replicates), ("reference_spp", reference_spp),
                         ("reference_chunks", reference_chunks)):
