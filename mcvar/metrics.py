@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from ._validation import as_array, check_positive
+from ._validation import as_array, check_bool, check_positive
 
 __all__ = ["mse", "relative_mse", "peak_signal_noise_ratio", "structural_similarity", "LogLogFit",
            "loglog_fit"]
@@ -97,6 +97,7 @@ def structural_similarity(reference, estimate, *, data_range=None, channel_axis=
     from skimage.metrics import structural_similarity as ssim
 
     ref, est = _pair(reference, estimate)
+    check_bool(gaussian_weights, "gaussian_weights")
     if ref.ndim not in (2, 3):
         raise ValueError(f"reference must be an image (H, W) or (H, W, C); got shape {ref.shape}")
     if channel_axis is None and ref.ndim == 3:

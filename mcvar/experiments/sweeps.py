@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_count, check_probability
+from .._validation import check_bool, check_count, check_probability
 from .targets import make_target, parse_method
 from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, run_seed
 from .reference import Reference, compute_reference
@@ -207,6 +207,8 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
         target = denoised_target(target)
     methods = _as_names(methods if methods is not None else target.methods, "methods")
     _check_methods(target, methods)
+    check_bool(progress, "progress")
+    check_bool(image_metrics, "image_metrics")
     samplers = _as_names(samplers if samplers is not None else target.samplers, "samplers")
     levels = _as_levels(spp if spp is not None else target.spp)
     replicates = check_count(replicates, "replicates")
