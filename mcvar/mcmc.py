@@ -363,9 +363,11 @@ def _evaluate(f, x: np.ndarray) -> np.ndarray:
     return v
 
 
-def _evaluate_chunked(evaluate, cand: np.ndarray, chunk: int = BOOTSTRAP_CHUNK):
-    """``evaluate`` over the rows of ``cand`` :data:`BOOTSTRAP_CHUNK` at a time:
-    the values (n,) and the payloads stacked (or None); one call when they fit."""
+def _evaluate_chunked(evaluate, cand: np.ndarray, chunk: int | None = None):
+    """``evaluate`` over the rows of ``cand`` ``chunk`` (default
+    :data:`BOOTSTRAP_CHUNK`) at a time: the values (n,) and the payloads
+    stacked (or None); one call when they fit."""
+    chunk = BOOTSTRAP_CHUNK if chunk is None else chunk
     n = cand.shape[0]
     if n <= chunk:
         return evaluate(cand)
