@@ -262,7 +262,7 @@ def format_bytes(b: float) -> str:
 
 
 def check_budget(name: str, value, needed_bytes: float, *, per_unit: float | None = None,
-                 budget: float | None = None, what: str = "") -> None:
+                 budget: float | None = None, what: str = "", unit_name: str | None = None) -> None:
     """The one rule for sizes an option implies: refuse before allocating.
 
     Parameters
@@ -270,7 +270,8 @@ def check_budget(name: str, value, needed_bytes: float, *, per_unit: float | Non
     name : str
         The option (``'photons'``, ``'n_bootstrap'``, ``'patch_size'``).
     value
-        Its value, quoted in the message.
+        Its value, quoted in the message (None: ``name`` already says it,
+        e.g. ``'patch_size=1 with rays_per_side=256'``).
     needed_bytes : float
         Estimated peak memory (computed in float, so that ``2**40`` of
         anything does not overflow).
@@ -281,6 +282,9 @@ def check_budget(name: str, value, needed_bytes: float, *, per_unit: float | Non
         Bytes allowed; default :data:`MEMORY_BUDGET` (read at call time).
     what : str
         What the memory holds (``'the photon map'``), for the message.
+    unit_name : str, optional
+        The count ``per_unit`` is per, in the 'at most ... fits' part
+        (default ``name``).
 
     Raises
     ------
@@ -294,8 +298,9 @@ def check_budget(name: str, value, needed_bytes: float, *, per_unit: float | Non
         return
     fit = ""
     if per_unit is not None and per_unit > 0:
-        fit = f"; at most {name}={int(limit // per_unit)} fits"
+        fit = f"; at most {name if unit_name is None else unit_name}={int(limit // per_unit)} fits"
     held = f" ({what})" if what else ""
-    raise ValueError(f"{name}={value!r} needs about {format_bytes(need)} of memory{held}, more than the "
+    label = name if value is None else f"{name}={value!r}"
+    raise ValueError(f"{label} needs about {format_bytes(need)} of memory{held}, more than the "
                      f"budget of {format_bytes(limit)}{fit} (raise mcvar._validation.MEMORY_BUDGET "
                      "if the machine has the memory)")

@@ -383,20 +383,27 @@ def _evaluate_chunked(evaluate, cand: np.ndarray, chunk: int | None = None):
     return fc, payload
 
 
-def check_walk_budget(dim: int, chains: int, n_bootstrap: int, n_steps: int = 0, thin: int = 1, *,
-                      payload_words: int = 0) -> None:
+def check_walk_budget(dim: int, chains: int, n_bootstrap: int | None, n_steps: int = 0, thin: int = 1, *,
+                      payload_words: int = 0, dim_name: str = "dim", dim_value=None) -> None:
     """The memory a chain run needs, checked against the budget before anything
     is drawn (:func:`mcvar._validation.check_budget`): the bootstrap's
     candidates (``n_bootstrap`` rows of ``dim`` numbers, their values and
     payloads, all kept for the resampling), a step's arrays
     (:data:`WORDS_PER_CHAIN_DIM` numbers per chain and dimension) and the
-    kept states (every ``thin``-th of ``n_steps`` steps of ``chains`` states)."""
+    kept states (every ``thin``-th of ``n_steps`` steps of ``chains`` states).
+    One chain's state is checked first, blaming ``dim_name`` (``'dim'``, or
+    PSSMLT's ``'state_depth'``); ``n_bootstrap=None`` skips the bootstrap."""
+    per_chain = 8.0 * (WORDS_PER_CHAIN_DIM * dim + 4 + payload_words)
+    check_budget(dim_name, dim if dim_value is None else dim_value, per_chain,
+                 what=f"one chain's step in {dim} dimensions")
+    if n_bootstrap is None:
+        n_bootstrap = 0
     per_candidate = 8.0 * (dim + 1 + payload_words)
     check_budget("n_bootstrap", n_bootstrap, n_bootstrap * per_candidate, per_unit=per_candidate,
                  what=f"{n_bootstrap} bootstrap candidates of {dim} numbers, kept for resampling")
-    per_chain = 8.0 * (WORDS_PER_CHAIN_DIM * dim + 4 + payload_words)
-    check_budget("chains", chains, chains * per_chain, per_unit=per_chain,
-                 what=f"a step of {chains} chains in {dim} dimensions")
+    dim_label = dim if dim_value is None else dim_value
+    check_budget(f"chains={chains!r} with {dim_name}={dim_label!r}", None, chains * per_chain, per_unit=per_chain,
+                 unit_name="chains", what=f"a step of {chains} chains in {dim} dimensions")
     n_kept = -(-n_steps // thin)
     check_budget("thin", thin, n_kept * 8.0 * chains * (dim + 2),
                  what=f"{n_kept} kept steps of {chains} chains in {dim} dimensions; a larger thin keeps fewer")

@@ -100,6 +100,21 @@ def _interval(lo, hi, name: str, n: int) -> tuple[float, float]:
     return lo, hi
 
 
+def _check_pdf_range(pmf: np.ndarray, density: float, positive=None) -> None:
+    """Every cell that can be sampled (``positive``, default ``pmf > 0``) has a
+    positive, finite pdf ``pmf * density``: a sampled point of pdf 0 (the
+    product underflowing) would be a sample the estimator divides by zero."""
+    positive = pmf > 0 if positive is None else positive
+    if not np.any(positive):
+        return
+    with np.errstate(over="ignore", under="ignore"):
+        pdf = pmf[positive] * density
+    if not (np.all(pdf > 0) and np.all(np.isfinite(pdf))):
+        raise ValueError(f"func and domain give a cell whose pdf ({float(pmf[positive].min())} x {density}) "
+                         "underflows to 0 or overflows: narrow func's range of values (e.g. set cells below "
+                         "1e-250 of its maximum to 0) or rescale the domain")
+
+
 def _unit(u, name: str = "u") -> np.ndarray:
     arr = as_array(u, name)
     if arr.size and not (np.all(arr >= 0.0) and np.all(arr <= 1.0)):
@@ -235,6 +250,7 @@ class PiecewiseConstant1D:
         self.pmf = np.diff(self.cdf)
         self.integral = float(f.sum()) * (self.max - self.min) / f.size
         self._last = int(_last_positive(self.pmf))
+        _check_pdf_range(self.pmf, f.size / (self.max - self.min))
         for a in (self.cdf, self.pmf):
             a.flags.writeable = False
 
@@ -392,6 +408,8 @@ class PiecewiseConstant2D:
         self.conditional_cdf = _cdf_rows(f)
         self.conditional_pmf = np.diff(self.conditional_cdf, axis=1)
         self._last_col = _last_positive(self.conditional_pmf)
+        _check_pdf_range(self.marginal.pmf[:, None] * self.conditional_pmf, nu * nv / area,
+                         positive=(self.marginal.pmf[:, None] > 0) & (self.conditional_pmf > 0))
         self._area = (self.domain[0][1] - self.domain[0][0]) * (self.domain[1][1] - self.domain[1][0])
         self.integral = float(f.sum()) * self._area / (nu * nv)
         self._shape = (nv, nu)

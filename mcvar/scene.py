@@ -526,7 +526,7 @@ class Scene:
         _check_coordinates(sc, "sphere_centers")
         n_prim = tri.shape[0] + sc.shape[0]
         if sr.shape[0] != sc.shape[0]:
-            raise ValueError(f"sphere_radii must have one value per sphere center ({sc.shape[0]}); "
+            raise ValueError(f"sphere_radii must have one value per row of sphere_centers ({sc.shape[0]}); "
                              f"got {sr.shape[0]}")
         if not np.all((sr > 0) & (sr <= MAX_COORDINATE)):
             raise ValueError(f"sphere_radii must be finite and > 0 (at most {MAX_COORDINATE:g}); got "
@@ -554,7 +554,8 @@ class Scene:
         names = self.material_names
         names = (names,) if isinstance(names, str) else tuple(names)
         if len(names) != len(materials) or not all(isinstance(n, str) for n in names):
-            raise ValueError(f"material_names must hold one string per material ({len(materials)}); got {names!r}")
+            raise ValueError(f"material_names must hold one string per entry of materials ({len(materials)}); "
+                             f"got {names!r}")
         mat = tables["prim_material"]
         if n_prim and not (mat.min() >= 0 and mat.max() < len(materials)):
             raise ValueError(f"prim_material must index into materials (0 .. {len(materials) - 1}); got values "

@@ -104,7 +104,7 @@ def test_photon_budget_matches_the_maps_own_bytes(cornell):
 def test_pssmlt_bootstrap_and_chains_refused_before_tracing(cornell, no_tracing):
     with pytest.raises(ValueError, match=r"n_bootstrap=1099511627776 needs about 296 TiB.*at most n_bootstrap="):
         render(cornell, integrator="pssmlt", spp=1, res=2, n_bootstrap=HUGE)
-    with pytest.raises(ValueError, match=r"chains=1099511627776 needs .*at most chains="):
+    with pytest.raises(ValueError, match=r"chains=1099511627776 with state_depth=6 needs .*at most chains="):
         render(cornell, integrator="pssmlt", spp=1, res=2, chains=HUGE)
 
 
@@ -113,7 +113,7 @@ def test_metropolis_refuses_what_cannot_fit_before_calling_f():
         raise _Started("f called before the check")
     with pytest.raises(ValueError, match="n_bootstrap=1099511627776 needs about 16 TiB"):
         mcmc.metropolis(f, 1, 10, n_bootstrap=HUGE)
-    with pytest.raises(ValueError, match="chains=1099511627776 needs"):
+    with pytest.raises(ValueError, match="chains=1099511627776 with dim=1 needs"):
         mcmc.metropolis(f, 1, 10, chains=HUGE)
     with pytest.raises(ValueError, match=r"thin=1 needs about .*\(1099511627776 kept steps"):
         mcmc.metropolis(f, 1, HUGE, thin=1)
@@ -156,7 +156,7 @@ def test_radiosity_counts_budget_names_emitter_rays(cornell, monkeypatch, no_tra
     monkeypatch.setattr(V, "MEMORY_BUDGET", 2 ** 20)
     with pytest.raises(ValueError, match="emitter_rays=1099511627776 needs"):
         render(cornell, integrator="radiosity", spp=1, res=2, patch_size=140.0, emitter_rays=HUGE)
-    with pytest.raises(ValueError, match="rays_per_side=4096 needs"):
+    with pytest.raises(ValueError, match="rays_per_side=4096 on the patches of patch_size=70.0 needs"):
         RA.radiosity(cornell, patch_size=70.0, rays_per_side=4096, emitter_rays=8)
 
 
@@ -288,13 +288,13 @@ def _spoiled(scene, **fields):
     ("triangles", lambda s: np.where(np.arange(s.triangles.size).reshape(s.triangles.shape) == 0, 1e300,
                                      s.triangles), ValueError, r"triangles must have coordinates within"),
     ("sphere_radii", lambda s: -s.sphere_radii, ValueError, "sphere_radii must be finite and > 0"),
-    ("sphere_radii", lambda s: s.sphere_radii[:1], ValueError, "sphere_radii must have one value per sphere"),
+    ("sphere_radii", lambda s: s.sphere_radii[:1], ValueError, "sphere_radii must have one value per row of sphere_centers"),
     ("light_edge1", lambda s: np.zeros_like(s.light_edge1), ValueError,
      "light_edge1 and light_edge2 must span a parallelogram of positive area"),
     ("light_edge2", lambda s: s.light_edge2 * 1e300, ValueError, "light_edge2 must have coordinates within"),
     ("prim_material", lambda s: s.prim_material + 0.5, ValueError, "prim_material must hold integers"),
     ("prim_light", lambda s: s.prim_light[:3], ValueError, "prim_light must have one row per primitive"),
-    ("material_names", lambda s: ("a",), ValueError, "material_names must hold one string per material"),
+    ("material_names", lambda s: ("a",), ValueError, "material_names must hold one string per entry of materials"),
     ("camera", lambda s: "camera", TypeError, "camera must be a mcvar.scene.Camera"),
     ("environment", lambda s: 1.0, TypeError, "environment must be None or a mcvar.envmap.EnvironmentMap"),
     ("point_light_position", lambda s: np.full((1, 3), np.nan), ValueError,
@@ -544,3 +544,22 @@ def test_graders_still_grade_good_arguments():
     assert G.grade_consistent(_good_estimator, 0.5, [4, 4096], replicates=32, rng=SEED, verbose=False).passed
     wo = np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]])
     assert G.grade_bsdf(Lambertian(0.5), wo=wo, n=20_000, rng=SEED, verbose=False).passed
+
+
+# --------------------------------------------------------------------------
+# Found by the deeper fuzz run (MCVAR_FUZZ_EXAMPLES=300), pinned here
+
+def test_found_by_the_fuzzer(cornell, no_tracing):
+    # radiosity at patch_size=1: 8 million patches whose side rays cannot fit: patch_size is named
+    with pytest.raises(ValueError, match="rays_per_side=256 on the patches of patch_size=1 needs about 182 GiB"):
+        render(cornell, integrator="radiosity", spp=1, res=2, patch_size=1)
+    # a state of 2**40 path segments was blamed on n_bootstrap=1, an option the user never gave
+    with pytest.raises(ValueError, match="state_depth=1099511627776 needs"):
+        render(cornell, integrator="pssmlt", spp=1, res=2, state_depth=HUGE)
+    with pytest.raises(ValueError, match="dim=1099511627776 needs"):
+        mcmc.metropolis(lambda u: u[:, 0], HUGE, 10)
+    # a cell of pmf 1e-300 on a domain of width 1e308: its pdf underflowed to 0 and was sampled
+    with pytest.raises(ValueError, match="func and domain give a cell whose pdf .* underflows"):
+        PiecewiseConstant1D([1.0, 1e300], 0.0, 1e308)
+    with pytest.raises(ValueError, match="func and domain give a cell whose pdf"):
+        PiecewiseConstant2D([[1e-300, 1.0], [1.0, 1e300]], ((0.0, 1e150), (0.0, 1e150)))

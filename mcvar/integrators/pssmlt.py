@@ -217,7 +217,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
     if n_bootstrap is None:
         n_bootstrap = max(4 * chains, n_mut // 4)
     n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
-    check_walk_budget(dim, chains, n_bootstrap, payload_words=4)
+    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth", dim_value=state_depth)
     tracer = tracer if tracer is not None else Tracer(scene)
     counter = [0]
     evaluate = _path_function(scene, res, tracer, max_depth, heuristic, rng, counter)
@@ -277,8 +277,9 @@ def _check_options(scene, options) -> None:
     check_choice(options["splat"], "splat", ("expected", "plain"))
     check_bool(options["bootstrap"], "bootstrap")
     dim = state_dim(check_count(options["state_depth"], "state_depth"))
-    n_bootstrap = 1 if options["n_bootstrap"] is None else check_count(options["n_bootstrap"], "n_bootstrap")
-    check_walk_budget(dim, chains, n_bootstrap, payload_words=4)
+    n_bootstrap = None if options["n_bootstrap"] is None else check_count(options["n_bootstrap"], "n_bootstrap")
+    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth",
+                      dim_value=options["state_depth"])
 
 
 register(Method("pssmlt", "chain", run_batch,

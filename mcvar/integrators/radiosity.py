@@ -106,13 +106,16 @@ def _check_patch_budget(n_patches: int, patch_size) -> None:
                  what=f"{n_patches} patches of {BYTES_PER_PATCH} bytes; a larger patch_size makes fewer")
 
 
-def _check_counts_budget(n_side: int, total_rays: float, rays_per_side: int, emitter_rays: int) -> None:
+def _check_counts_budget(n_side: int, total_rays: float, rays_per_side: int, emitter_rays: int,
+                         patch_size) -> None:
     """The counts matrix (one non-zero per ray at most, at most ``n_side^2``)
-    against the budget; the message blames the larger share of the rays."""
+    against the budget; the message blames the larger share of the rays
+    (``emitter_rays``, or ``rays_per_side`` from every side of ``patch_size``'s patches)."""
     nonzero = min(float(total_rays), float(n_side) ** 2)
     big = emitter_rays > float(n_side) * rays_per_side
-    check_budget("emitter_rays" if big else "rays_per_side", emitter_rays if big else rays_per_side,
-                 nonzero * BYTES_PER_NONZERO,
+    label = f"emitter_rays={emitter_rays!r}" if big else \
+        f"rays_per_side={rays_per_side!r} on the patches of patch_size={patch_size!r}"
+    check_budget(label, None, nonzero * BYTES_PER_NONZERO,
                  what=f"form-factor counts of {n_side} sides: up to one non-zero per ray, at most {n_side}^2")
 
 
@@ -391,7 +394,7 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         per_side[emitting] = np.maximum(m, np.ceil(m_e * share).astype(np.int64))
     ends = np.cumsum(per_side)
     total = int(ends[-1])
-    _check_counts_budget(n_side, total, m, m_e)
+    _check_counts_budget(n_side, total, m, m_e, patches.patch_size)
     counts = None
     env = np.zeros((n_side, 3))
     emission = np.zeros((n_side, 3))
@@ -622,7 +625,7 @@ def _check_radiosity_budget(scene, patch_size, rays_per_side, emitter_rays) -> N
     m_e = check_count(emitter_rays, "emitter_rays")
     n = patch_count(scene, patch_size)
     _check_patch_budget(n, patch_size)
-    _check_counts_budget(2 * n, 2.0 * n * m + m_e, m, m_e)
+    _check_counts_budget(2 * n, 2.0 * n * m + m_e, m, m_e, patch_size)
 
 
 def _check_radiosity(scene, options) -> None:
