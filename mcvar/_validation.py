@@ -247,7 +247,7 @@ def check_bool(value, name: str) -> bool:
     whatever it says, so accepting it would silently turn ``'no'`` into yes.
     """
     if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False (a bool); got {type(value).__name__} {value!r}")
+        raise TypeError(f"{name} must be a bool (True or False); got {type(value).__name__} {value!r}")
     return bool(value)
 
 

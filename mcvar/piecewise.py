@@ -115,6 +115,17 @@ def _check_pdf_range(pmf: np.ndarray, density: float, positive=None) -> None:
                          "1e-250 of its maximum to 0) or rescale the domain")
 
 
+def _smallest_positive_per_row(pmf: np.ndarray, rows: int = 64) -> np.ndarray:
+    """The smallest positive entry of each row (1 for a row without one), a
+    few rows at a time (no temporary of the table's size)."""
+    out = np.ones(pmf.shape[0])
+    for a in range(0, pmf.shape[0], rows):
+        block = pmf[a:a + rows]
+        out[a:a + rows] = np.min(block, axis=1, where=block > 0, initial=np.inf)
+    out[~np.isfinite(out)] = 1.0
+    return out
+
+
 def _unit(u, name: str = "u") -> np.ndarray:
     arr = as_array(u, name)
     if arr.size and not (np.all(arr >= 0.0) and np.all(arr <= 1.0)):
@@ -408,8 +419,8 @@ class PiecewiseConstant2D:
         self.conditional_cdf = _cdf_rows(f)
         self.conditional_pmf = np.diff(self.conditional_cdf, axis=1)
         self._last_col = _last_positive(self.conditional_pmf)
-        _check_pdf_range(self.marginal.pmf[:, None] * self.conditional_pmf, nu * nv / area,
-                         positive=(self.marginal.pmf[:, None] > 0) & (self.conditional_pmf > 0))
+        _check_pdf_range(self.marginal.pmf * _smallest_positive_per_row(self.conditional_pmf), nu * nv / area,
+                         positive=self.marginal.pmf > 0)
         self._area = (self.domain[0][1] - self.domain[0][0]) * (self.domain[1][1] - self.domain[1][0])
         self.integral = float(f.sum()) * self._area / (nu * nv)
         self._shape = (nv, nu)
