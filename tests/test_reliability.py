@@ -265,6 +265,17 @@ def test_every_registered_boolean_option_is_checked(cornell, no_tracing):
     assert found >= 3
 
 
+def test_check_scene_itself_refuses_non_boolean_options(cornell):
+    """The registry's contract: ``check_scene`` (run once, in the parent, before
+    ``prepare`` and any batch) refuses a bad option; a check left to the batch
+    would surface in a worker process."""
+    for name, method in METHODS.items():
+        for key, default in method.options.items():
+            if isinstance(default, bool):
+                with pytest.raises(TypeError, match=f"{key} must be a bool"):
+                    method.check_scene(cornell, method.resolve_options({key: "no"}))
+
+
 # --------------------------------------------------------------------------
 # 3. Scenes built by hand
 
@@ -521,6 +532,8 @@ def _student_never_called(*args, **kwargs):
     (lambda: G.grade_consistent(_student_never_called, 0.5, [10, 1000], significance=-1), ValueError,
      "significance must be finite and > 0"),
     (lambda: G.grade_consistent(_student_never_called, np.nan, [10, 1000]), ValueError, "exact must be finite"),
+    (lambda: G.grade_consistent(_student_never_called, 0.5, [10, 1000], significance=1.5), ValueError,
+     r"significance must lie in \(0, 1\)"),
     (lambda: G.grade_consistent(_student_never_called, 0.5, 10), TypeError, "ns must be a sequence"),
     (lambda: G.grade_consistent(_student_never_called, 0.5, [10, 2.5]), ValueError, r"ns\[1\] must be an integer"),
     (lambda: G.grade_bsdf(Lambertian(0.5), wo=[[0.0, 2.0, 0.0]]), ValueError, "wo must hold unit vectors"),
