@@ -314,13 +314,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What ``main`` reports as a user's error (one line on stderr, exit status 2):
+#: bad values and types (the library's ``ValueError``/``TypeError`` name the
+#: argument), files that cannot be read or written (``OSError``: a missing
+#: file, ``--out`` naming a directory, no permission, a full disk) and a
+#: ``--target`` module that cannot be imported. Anything else (``KeyError``,
+#: ``IndexError``, ``MemoryError`` ...) is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, TypeError, OSError, ImportError)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
-        print(f"mcvar {args.command}: error: {exc}", file=sys.stderr)
+    except USER_ERRORS as exc:
+        print(f"mcvar {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mcvar {args.command}: interrupted", file=sys.stderr)

@@ -47,7 +47,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
-from .bsdf import Glass, Lambertian, Mirror
+from .bsdf import BSDF, Glass, Lambertian, Mirror
+from .envmap import EnvironmentMap
 from .geometry import normalize
 from .scenefile import read_scene_file
 
@@ -396,6 +397,50 @@ def _film_res(res):
     return int(width), int(height)
 
 
+#: Largest coordinate magnitude of scene geometry (vertices, sphere centres
+#: and radii, light corners and edges, point lights): the tracer's float32
+#: geometry squares coordinate differences, which stay finite in float32 (max
+#: 3.4e38) below about 1.8e19; 1e18 leaves room for sums of three squares.
+MAX_COORDINATE = 1e18
+
+
+def _scene_array(value, name: str, row: tuple, dtype=np.float64, *, nonnegative: bool = False) -> np.ndarray:
+    """A Scene field as a read-only array of shape ``(n,) + row``: an empty
+    input is ``(0,) + row``; another shape, NaN/Inf, (for floats) a negative
+    entry where ``nonnegative``, or a value that is not a whole number in an
+    integer table is a ValueError naming the field."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be an array of shape (n, {', '.join(map(str, row))}); got a string")
+    if np.dtype(dtype) == np.float64:
+        arr = as_array(value, name, nonnegative=nonnegative)
+    else:
+        try:
+            raw = np.asarray(value)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{name} must be an array; got {type(value).__name__}") from exc
+        if raw.size and raw.dtype.kind not in ("b" if dtype is bool else "biu"):
+            if dtype is bool or raw.dtype.kind != "f" or not np.all(np.isfinite(raw)) \
+                    or not np.all(raw == np.round(raw)):
+                raise ValueError(f"{name} must hold {'booleans' if dtype is bool else 'integers'}; got dtype "
+                                 f"{raw.dtype}")
+        arr = raw.astype(dtype)
+    if arr.size == 0:
+        arr = arr.reshape((0,) + row)
+    if arr.shape[1:] != row or arr.ndim != 1 + len(row):
+        want = "(n" + "".join(f", {r}" for r in row) + ")" if row else "(n,)"
+        raise ValueError(f"{name} must have shape {want}; got shape {arr.shape}")
+    arr = np.array(arr, dtype=dtype)
+    arr.flags.writeable = False
+    return arr
+
+
+def _check_coordinates(arr: np.ndarray, name: str) -> None:
+    """Geometry within +-:data:`MAX_COORDINATE` (finite is checked already)."""
+    if arr.size and not np.all(np.abs(arr) <= MAX_COORDINATE):
+        raise ValueError(f"{name} must have coordinates within +-{MAX_COORDINATE:g} (the tracer's float32 "
+                         f"geometry squares them); got {float(np.abs(arr).max())!r}")
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
     """Immutable scene data: primitives, materials, emitters and camera.
@@ -483,57 +528,89 @@ class Scene:
     render_defaults: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
-        tri = _frozen(self.triangles).reshape(-1, 3, 3)
-        sc = _frozen(self.sphere_centers).reshape(-1, 3)
-        sr = _frozen(self.sphere_radii).reshape(-1)
+        if not isinstance(self.name, str):
+            raise TypeError(f"Scene.name must be a string; got {type(self.name).__name__}")
+        tri = _scene_array(self.triangles, "triangles", (3, 3))
+        sc = _scene_array(self.sphere_centers, "sphere_centers", (3,))
+        sr = _scene_array(self.sphere_radii, "sphere_radii", ())
+        _check_coordinates(tri, "triangles")
+        _check_coordinates(sc, "sphere_centers")
         n_prim = tri.shape[0] + sc.shape[0]
-        if sr.shape[0] != sc.shape[0] or not np.all(sr > 0):
-            raise ValueError("sphere_radii must be > 0, one per sphere center")
+        if sr.shape[0] != sc.shape[0]:
+            raise ValueError(f"sphere_radii must have one value per row of sphere_centers ({sc.shape[0]}); "
+                             f"got {sr.shape[0]}")
+        if not np.all((sr > 0) & (sr <= MAX_COORDINATE)):
+            raise ValueError(f"sphere_radii must be finite and > 0 (at most {MAX_COORDINATE:g}); got "
+                             f"{sr[~((sr > 0) & (sr <= MAX_COORDINATE))][0]}")
         tables = {
-            "prim_material": _frozen(self.prim_material, np.int64).reshape(-1),
-            "prim_emission": _frozen(self.prim_emission).reshape(-1, 3),
-            "prim_two_sided_emission": _frozen(self.prim_two_sided_emission, bool).reshape(-1),
-            "prim_light": _frozen(self.prim_light, np.int64).reshape(-1),
-            "prim_group": _frozen(self.prim_group, np.int64).reshape(-1),
+            "prim_material": _scene_array(self.prim_material, "prim_material", (), np.int64),
+            "prim_emission": _scene_array(self.prim_emission, "prim_emission", (3,), nonnegative=True),
+            "prim_two_sided_emission": _scene_array(self.prim_two_sided_emission, "prim_two_sided_emission",
+                                                    (), bool),
+            "prim_light": _scene_array(self.prim_light, "prim_light", (), np.int64),
+            "prim_group": _scene_array(self.prim_group, "prim_group", (), np.int64),
         }
         for key, arr in tables.items():
             if arr.shape[0] != n_prim:
-                raise ValueError(f"{key} must have one row per primitive ({n_prim}); got {arr.shape[0]}")
-        if not np.all(tables["prim_emission"] >= 0):
-            raise ValueError("prim_emission must be non-negative")
+                raise ValueError(f"{key} must have one row per primitive ({n_prim}: {tri.shape[0]} triangles, "
+                                 f"{sc.shape[0]} spheres); got {arr.shape[0]}")
+        materials = self.materials
+        if isinstance(materials, (str, bytes)) or not hasattr(materials, "__iter__"):
+            raise TypeError(f"materials must be a tuple of mcvar.bsdf objects; got {type(materials).__name__}")
+        materials = tuple(materials)
+        for i, m in enumerate(materials):
+            if not isinstance(m, BSDF):
+                raise TypeError(f"materials[{i}] must be a mcvar.bsdf object (Lambertian, Mirror, Glass, ...); "
+                                f"got {type(m).__name__} {m!r}")
+        names = self.material_names
+        names = (names,) if isinstance(names, str) else tuple(names)
+        if len(names) != len(materials) or not all(isinstance(n, str) for n in names):
+            raise ValueError(f"material_names must hold one string per entry of materials ({len(materials)}); "
+                             f"got {names!r}")
         mat = tables["prim_material"]
-        if n_prim and not (mat.min() >= 0 and mat.max() < len(self.materials)):
-            raise ValueError("prim_material must index into materials")
-        lights = {k: _frozen(getattr(self, k)).reshape(-1, 3)
+        if n_prim and not (mat.min() >= 0 and mat.max() < len(materials)):
+            raise ValueError(f"prim_material must index into materials (0 .. {len(materials) - 1}); got values "
+                             f"in [{mat.min()}, {mat.max()}]")
+        lights = {k: _scene_array(getattr(self, k), k, (3,), nonnegative=(k == "light_radiance"))
                   for k in ("light_origin", "light_edge1", "light_edge2", "light_radiance")}
         n_light = lights["light_origin"].shape[0]
-        if any(v.shape[0] != n_light for v in lights.values()):
-            raise ValueError("light_origin, light_edge1, light_edge2, light_radiance must have one row per light")
-        if not np.all(lights["light_radiance"] >= 0):
-            raise ValueError("light_radiance must be non-negative")
-        if not np.all(np.linalg.norm(np.cross(lights["light_edge1"], lights["light_edge2"]), axis=1) > 0):
-            raise ValueError("light edges must span a parallelogram of positive area")
-        points = {k: _frozen(np.zeros((0, 3)) if getattr(self, k) is None else getattr(self, k)).reshape(-1, 3)
+        for k, v in lights.items():
+            if v.shape[0] != n_light:
+                raise ValueError(f"{k} must have one row per light ({n_light}, as light_origin); got {v.shape[0]}")
+            if k != "light_radiance":
+                _check_coordinates(v, k)
+        area = np.linalg.norm(np.cross(lights["light_edge1"], lights["light_edge2"]), axis=1)
+        if not np.all((area > 0) & np.isfinite(area)):
+            bad = int(np.argmax(~((area > 0) & np.isfinite(area))))
+            raise ValueError(f"light_edge1 and light_edge2 must span a parallelogram of positive area; light {bad} "
+                             f"has area {area[bad]}")
+        points = {k: _scene_array(np.zeros((0, 3)) if getattr(self, k) is None else getattr(self, k), k, (3,),
+                                  nonnegative=(k == "point_light_intensity"))
                   for k in ("point_light_position", "point_light_intensity")}
         if points["point_light_position"].shape != points["point_light_intensity"].shape:
             raise ValueError("point_light_position and point_light_intensity must have one row (3 values) "
                              f"per point light; got {points['point_light_position'].shape} and "
                              f"{points['point_light_intensity'].shape}")
-        if not (np.all(np.isfinite(points["point_light_position"]))
-                and np.all(np.isfinite(points["point_light_intensity"]))
-                and np.all(points["point_light_intensity"] >= 0)):
-            raise ValueError("point lights need finite positions and finite non-negative intensities")
+        _check_coordinates(points["point_light_position"], "point_light_position")
         lights.update(points)
         pl = tables["prim_light"]
         if n_prim and not (pl.min() >= -1 and pl.max() < n_light):
-            raise ValueError("prim_light must be -1 or index a light")
+            raise ValueError(f"prim_light must be -1 or index a light (0 .. {n_light - 1}); got values in "
+                             f"[{pl.min()}, {pl.max()}]")
+        if not isinstance(self.camera, Camera):
+            raise TypeError(f"camera must be a mcvar.scene.Camera; got {type(self.camera).__name__}")
+        if self.environment is not None and not isinstance(self.environment, EnvironmentMap):
+            raise TypeError(f"environment must be None or a mcvar.envmap.EnvironmentMap; got "
+                            f"{type(self.environment).__name__}")
+        if not isinstance(self.description, str):
+            raise TypeError(f"description must be a string; got {type(self.description).__name__}")
         object.__setattr__(self, "triangles", tri)
         object.__setattr__(self, "sphere_centers", sc)
         object.__setattr__(self, "sphere_radii", sr)
         for key, arr in {**tables, **lights}.items():
             object.__setattr__(self, key, arr)
-        object.__setattr__(self, "materials", tuple(self.materials))
-        object.__setattr__(self, "material_names", tuple(self.material_names))
+        object.__setattr__(self, "materials", materials)
+        object.__setattr__(self, "material_names", names)
         check_positive(self.ray_epsilon, "ray_epsilon")
         if self.checker_period is not None:
             check_positive(self.checker_period, "checker_period")

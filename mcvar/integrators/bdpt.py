@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import check_bool
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult, splat
 from .light import (CHUNK_PATHS, RR_MAX_VERTICES, _bsdf_eval, _connect_camera, _Context, _cos, _dot, _Only,
@@ -356,6 +357,8 @@ def run_bdpt_batch(job: BatchJob) -> BatchResult:
 
 
 def _check_bdpt(scene, options):
+    check_bool(options["mis"], "mis")
+    check_bool(options["strategies"], "strategies")
     check_scene(scene, options, "bdpt")
 
 

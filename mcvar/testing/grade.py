@@ -52,7 +52,8 @@ from typing import Callable
 import numpy as np
 from scipy import stats
 
-from .._validation import as_array, as_rng, check_choice, check_count, check_positive
+from .._validation import (as_array, as_rng, as_unit_directions, check_bool, check_choice, check_count,
+                           check_positive)
 from ..discrepancy import is_net
 from ..geometry import spherical_to_direction
 from ..optics import fresnel_dielectric, refract
@@ -182,6 +183,25 @@ def _run(name: str, body: Callable, verbose: bool) -> GradeResult:
     return result
 
 
+def _teacher_args(name, verbose, significance=None, rng=None):
+    """The grader's own arguments, checked before any student code runs: a bad
+    one is the teacher's error (a ``ValueError`` or ``TypeError`` naming it),
+    never a FAIL of the student's code. Returns ``(significance, rng)``."""
+    if not isinstance(name, str):
+        raise TypeError(f"name must be a string; got {type(name).__name__}")
+    check_bool(verbose, "verbose")
+    if significance is not None:
+        significance = check_positive(significance, "significance")
+        if not significance < 1.0:
+            raise ValueError(f"significance must lie in (0, 1) (a test's false-alarm rate); got {significance}")
+    return significance, as_rng(rng)
+
+
+def _exact_value(exact) -> np.ndarray:
+    """``exact`` of an estimator grader: finite real numbers (a ValueError naming it)."""
+    return as_array(exact, "exact")
+
+
 def _first_failure(checks) -> str | None:
     for c in checks:
         if not c.passed:
@@ -221,6 +241,7 @@ def grade_warp(sample: Callable, pdf: Callable, domain: str, *, n: int = 200_000
         PASS when :func:`~mcvar.testing.check_extremes` and
         :func:`~mcvar.testing.chi2_test` both pass.
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
     domain = check_choice(domain, "domain", DOMAINS)
     n = check_count(n, "n")
     s, p = _guard(sample), _guard(pdf)
@@ -273,6 +294,8 @@ def grade_sampler(sampler: Callable, n: int, *, strata=None, net: int | None = N
     -------
     GradeResult
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    check_bool(randomized, "randomized")
     n = check_count(n, "n")
     replicates = check_count(replicates, "replicates") if randomized else 1
     if strata is not None:
@@ -359,7 +382,10 @@ def grade_bsdf(bsdf, *, wo=None, n: int = 100_000, rng=None, significance: float
     -------
     GradeResult
     """
-    wos = _default_wo() if wo is None else as_array(wo, "wo").reshape(-1, 3)
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    wos = _default_wo() if wo is None else as_unit_directions(wo, "wo").reshape(-1, 3)
+    if wos.shape[0] == 0:
+        raise ValueError("wo must hold at least one direction; got none")
     n = check_count(n, "n")
     b = _GuardedBSDF(bsdf)
     streams = as_rng(rng).spawn(2 * wos.shape[0])
@@ -439,9 +465,10 @@ def grade_estimator(estimator: Callable, exact, *, n: int, replicates: int = 64,
     replicates), at ``significance`` split Sidak-wise between the bias and
     the variance tests.
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    exact = _exact_value(exact)
     n = check_count(n, "n")
     replicates = _at_least_two(replicates)
-    significance = check_positive(significance, "significance")
     if variance is not None:
         variance = float(as_array(variance, "variance", nonnegative=True))
     est = _guard(estimator)
@@ -521,7 +548,11 @@ def grade_consistent(estimator: Callable, exact, ns, *, replicates: int = 32, rn
     estimator (the lecture's fixed grid) passes; an unbiased but inconsistent
     one (a single sample, whatever ``n``) fails.
     """
-    ns = [check_count(v, "ns[i]") for v in ns]
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    exact = _exact_value(exact)
+    if isinstance(ns, (str, bytes)) or not hasattr(ns, "__iter__"):
+        raise TypeError(f"ns must be a sequence of increasing counts; got {type(ns).__name__}")
+    ns = [check_count(v, f"ns[{i}]") for i, v in enumerate(ns)]
     if len(ns) < 2 or any(b <= a for a, b in zip(ns, ns[1:])):
         raise ValueError(f"ns must be at least two increasing counts; got {ns}")
     replicates = _at_least_two(replicates)
@@ -591,6 +622,7 @@ def grade_pixel_sampler(sample_pixels: Callable, image, *, n: int = 200_000, rng
         chi-square test (:func:`mcvar.testing.chi2_test`, one cell per pixel)
         accepts the pixel counts.
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
     prob = _lat_long_probabilities(image)
     h, w = prob.shape
     img = np.array(image, dtype=np.float64)
@@ -653,6 +685,9 @@ def grade_values(function: Callable, inputs, expected, *, rtol: float = 1e-6, at
     -------
     GradeResult
     """
+    _teacher_args(name, verbose)
+    rtol = check_positive(rtol, "rtol", allow_zero=True)
+    atol = check_positive(atol, "atol", allow_zero=True)
     exp = as_array(expected, "expected")
     fn = _guard(function)
     inputs = tuple(inputs)
