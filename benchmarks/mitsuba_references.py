@@ -15,9 +15,12 @@ exporter changes, the test sees a stale reference instead of a bias.
 Nothing is rendered at test time.
 
 Which Mitsuba integrator makes each reference is a choice per case: the
-built-in ``cornell-point`` is rendered by particle tracing (``ptracer``),
-because its path-traced estimate is heavy-tailed (the ceiling spot 1 unit
-above the light is reached only by a lucky BSDF bounce; docs/mitsuba.md).
+built-in ``cornell-point`` (all depths and depth 2) is rendered by particle
+tracing (``ptracer``), because its camera-side estimates are heavy-tailed:
+the ceiling spot 1 unit above the light, in view of the camera, is a tiny,
+extremely bright part of its pixels that camera rays find only by luck
+(docs/mitsuba.md, 'Heavy tails'); particles reach it in proportion to its
+irradiance.
 """
 from __future__ import annotations
 
@@ -41,7 +44,7 @@ CASES = {
     "cornell-spheres": ("cornell-spheres", "path", None),
     "cornell-spheres-d2": ("cornell-spheres", "path", 2),
     "cornell-point": ("cornell-point", "ptracer", None),
-    "cornell-point-d2": ("cornell-point", "path", 2),
+    "cornell-point-d2": ("cornell-point", "ptracer", 2),
     "cornell-point-low": ("cornell-point-low", "path", None),
     "cornell-point-low-d2": ("cornell-point-low", "path", 2),
     "checkerboard": ("checkerboard", "path", None),
