@@ -91,7 +91,7 @@ EXCLUDED = {
 #: with the comparison that replaces it.
 _SPOT = ("the ceiling spot 1 unit above the point light (irradiance I / 1^2, in view of the camera) is a tiny, "
          "extremely bright part of its pixels' footprints, found by camera rays only by luck: heavy-tailed at any "
-         "spp a test affords (measured: -21 % to -34 % at 16 x 64 spp); compared on cornell-point-low (the light "
+         "spp a test affords (measured: -21 % to -37 % at 16 x 64 spp, the deficit in the spot's blocks); compared on cornell-point-low (the light "
          "100 units lower) instead, while light and bdpt, which reach the spot from the light, are compared here "
          "against Mitsuba's particle tracer")
 _SLIT = ("the light reaches the visible room only through a 20-unit slit: camera paths find the lit closet, "
