@@ -143,6 +143,11 @@ def test_the_refused_models_really_differ_in_mitsuba():
     ratio = [float(np.array(rough.eval(ctx, _si(o), _local(i)))[0] / i[1] / cu.eval(o[None], i[None])[0, 0])
              for o, i in zip(wo, wi)]
     assert max(abs(np.array(ratio) - 1)) > 0.05
+    # ... and the difference is exactly the masking: alpha, D and the Fresnel term are the same
+    from mcvar.bsdf import _smith_lambda
+
+    lo, li = _smith_lambda(wo, 0.5, 0.5, "ggx"), _smith_lambda(wi, 0.5, 0.5, "ggx")
+    np.testing.assert_allclose(ratio, (1 + lo + li) / ((1 + lo) * (1 + li)), rtol=1e-4)
     pl = mi.load_dict({"type": "plastic", "diffuse_reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]},
                        "int_ior": 1.5, "ext_ior": 1.0})
     ours = Plastic(0.5).eval(wo[:1], wi[:1])[0, 0]
