@@ -26,7 +26,9 @@ spheres                    ``sphere`` (``center``, ``radius``)
 smooth ``Conductor``       ``twosided`` ``conductor`` with the same ``eta, k``
 ``Glass(eta, 'exact')``    ``dielectric``, ``int_ior = eta``, ``ext_ior = 1``,
                            tints as ``specular_reflectance/transmittance``
-emission (one-sided)       ``area`` emitter on the primitive's shape
+emission (one-sided)       ``area`` emitter on the primitive's shape; emission
+                           that is not a light (``prim_light == -1``: found
+                           by BSDF sampling only) with ``sampling_weight: 0``
 emission (two-sided)       ``area`` towards the only side anything can see
                            (the other side is unobservable: everything else
                            lies on one side of the emitting plane, or inside /
@@ -285,12 +287,19 @@ def _sphere_emission_inward(scene: Scene, s: int) -> bool:
                      "or other geometry lies both inside and outside it")
 
 
-def _emitter(le, checker_period) -> dict:
+def _emitter(le, checker_period, is_light: bool) -> dict:
+    """An ``area`` emitter; emission that is not one of mcvar's lights (``prim_light == -1``)
+    is found only by BSDF sampling in mcvar, and gets ``sampling_weight: 0`` (never
+    chosen by next-event estimation, MIS weight 1 when hit) in Mitsuba too."""
     if checker_period is None:
-        return {"type": "area", "radiance": _rgb(le)}
-    # Mitsuba's checkerboard is color1 where floor(2u) + floor(2v) is odd; with
-    # (u, v) = (x, z) / (2 p) that is mcvar's lit square.
-    return {"type": "area", "radiance": {"type": "checkerboard", "color0": _rgb(0.0), "color1": _rgb(le)}}
+        e = {"type": "area", "radiance": _rgb(le)}
+    else:
+        # Mitsuba's checkerboard is color1 where floor(2u) + floor(2v) is odd; with
+        # (u, v) = (x, z) / (2 p) that is mcvar's lit square.
+        e = {"type": "area", "radiance": {"type": "checkerboard", "color0": _rgb(0.0), "color1": _rgb(le)}}
+    if not is_light:
+        e["sampling_weight"] = 0.0
+    return e
 
 
 # ---------------------------------------------------------------------------
@@ -391,7 +400,7 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         le = scene.prim_emission[t]
         emits = bool(np.any(le > 0))
         key = (int(scene.prim_material[t]), tuple(le.tolist()) if emits else None,
-               bool(scene.prim_two_sided_emission[t]) and emits)
+               bool(scene.prim_two_sided_emission[t]) and emits, bool(scene.prim_light[t] >= 0) and emits)
         tri_groups.setdefault(key, []).append(t)
     flips = {key: (_triangle_emission_flip(scene, np.array(idx), extent) if key[2] else False)
              for key, idx in tri_groups.items()}
@@ -419,7 +428,7 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         ids.append(f"bsdf_{i}_{_safe(name)}")
         d[ids[-1]] = b
     for g, (key, idx) in enumerate(tri_groups.items()):
-        mat, le, _ = key
+        mat, le, _, is_light = key
         tris = scene.triangles[np.array(idx)]
         if flips[key]:
             tris = tris[:, ::-1]
@@ -430,7 +439,7 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         path = _write_once(folder, f"mesh{g}", ".ply", payload, lambda p, b=payload: Path(p).write_bytes(b))
         shape = {"type": "ply", "filename": path, "face_normals": True, "bsdf": {"type": "ref", "id": ids[mat]}}
         if le is not None:
-            shape["emitter"] = _emitter(le, scene.checker_period)
+            shape["emitter"] = _emitter(le, scene.checker_period, is_light)
         d[f"mesh{g}_{_safe(scene.material_names[mat])}"] = shape
     for s in range(scene.n_spheres):
         mat = int(scene.prim_material[n_tri + s])
@@ -438,13 +447,17 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
                  "radius": float(scene.sphere_radii[s]), "bsdf": {"type": "ref", "id": ids[mat]}}
         le = scene.prim_emission[n_tri + s]
         if np.any(le > 0):
-            shape["emitter"] = _emitter(le, None)
+            shape["emitter"] = _emitter(le, None, bool(scene.prim_light[n_tri + s] >= 0))
             if inward.get(s, False):
                 shape["flip_normals"] = True
         d[f"sphere{s}_{_safe(scene.material_names[mat])}"] = shape
     for p in range(scene.n_point_lights):
         d[f"point{p}"] = {"type": "point", "position": [float(x) for x in scene.point_light_position[p]],
                           "intensity": _rgb(scene.point_light_intensity[p])}
+    if env is None and scene.n_lights == 0 and scene.n_point_lights == 0:
+        # Mitsuba needs one emitter that next-event estimation can choose; a black
+        # point light at the camera keeps every emitter above at sampling weight 0
+        d["no_light"] = {"type": "point", "position": [float(x) for x in cam.position], "intensity": _rgb(0.0)}
     if env is not None:
         img = np.asarray(env.image)
         if np.all(img == img[0, 0]):
