@@ -74,6 +74,7 @@ PLAN = {
     ("sphere-sparse-env", "path"): (256, 16),
     ("sphere-sparse-env", "direct"): (256, 16),
     ("sphere-sparse-env", "direct_light"): (256, 16),
+    ("sphere-sparse-env", "bdpt"): (32, 16),
 }
 
 #: (scene, method) pairs not compared on that scene, and why: the method

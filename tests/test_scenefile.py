@@ -465,6 +465,10 @@ def test_point_constant_and_environment_emitters(tmp_path):
     pt = build('<emitter type="point"><point name="position" value="1, 2, 3"/>'
                '<rgb name="intensity" value="4, 5, 6"/></emitter>')
     assert np.allclose(pt.point_light_position, [[1, 2, 3]]) and np.allclose(pt.point_light_intensity, [[4, 5, 6]])
+    # a black point light (the exporter's stand-in where Mitsuba needs an emitter) emits nothing: dropped
+    black = build('<emitter type="point"><point name="position" value="1, 2, 3"/>'
+                  '<rgb name="intensity" value="0, 0, 0"/></emitter>')
+    assert black.n_point_lights == 0
     sky = build('<emitter type="constant"><rgb name="radiance" value="0.5, 1, 2"/></emitter>')
     assert np.allclose(sky.environment.radiance(np.array([[0.0, 1.0, 0.0], [0.3, -0.9, 0.3]])
                                                 / [[1.0], [np.linalg.norm([0.3, -0.9, 0.3])]]), [0.5, 1, 2])
