@@ -1030,12 +1030,14 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     float32). ``ray_epsilon`` and the description travel in a ``<!-- mcvar
     ... -->`` comment that Mitsuba ignores. ``load_scene(save_scene(s))``
     renders the same image as ``s`` with the same seed (tests/test_scenefile.py).
-    Needs Mitsuba 3 installed (``mcvar[mitsuba]``): the exporter builds its
-    transforms with it.
+    Needs no Mitsuba: the camera and the environment's rotation are written as
+    XML records, an environment image through :func:`mcvar.images.write_image`
+    (EXR needs the ``exr`` extra).
     """
     # save_scene is the one function of this module above layer 4: it writes through the
     # exporter of mcvar.interop (layer 5), imported here, when called (tests/test_layering.py)
-    from .interop.mitsuba import to_mitsuba
+    from .images import write_image
+    from .interop.mitsuba import MitsubaTransforms, scene_dict
     from .scenefile import LookAt, Rotate, write_xml
 
     if not isinstance(scene, Scene):
@@ -1048,19 +1050,13 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     spp = defaults.get("spp", 16) if spp is None else spp
     max_depth = defaults.get("max_depth") if max_depth is None else max_depth
     folder = path.parent / path.stem
-    d = to_mitsuba(scene, res=res, spp=spp, max_depth=max_depth, folder=folder)
-    cam = scene.camera
-    d["sensor"]["to_world"] = LookAt(tuple(cam.position), tuple(cam.look_at), tuple(cam.up))
+    records = MitsubaTransforms(look_at=lambda o, t, u: LookAt(tuple(o), tuple(t), tuple(u)),
+                                rotate_y=lambda deg: Rotate((0.0, 1.0, 0.0), float(deg)),
+                                write_exr=lambda p, image: write_image(p, image))
+    d = scene_dict(scene, res=res, spp=spp, max_depth=max_depth, folder=folder, transforms=records)
     if "rr_depth" in defaults and "max_depth" in d["integrator"]:
         d["integrator"]["rr_depth"] = int(defaults["rr_depth"])
     env = d.get("environment")
-    if env is not None and "to_world" in env:
-        m = np.asarray(env["to_world"].matrix, dtype=np.float64)
-        angle = math.degrees(math.atan2(m[0, 2], m[0, 0]))
-        if not np.allclose(m[:3, :3], _y_rotation(angle), atol=1e-6):
-            raise ValueError("the exporter's environment transform is not a rotation about +y")
-        # the exporter builds it in float32: its angle to 1e-4 degrees (whole degrees in practice)
-        env["to_world"] = Rotate((0.0, 1.0, 0.0), float(round(angle, 4)))
     for value in d.values():
         if isinstance(value, dict) and isinstance(value.get("filename"), str):
             value["filename"] = os.path.relpath(value["filename"], path.parent).replace(os.sep, "/")
@@ -1073,12 +1069,6 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     path.write_text(write_xml(d, comments=[f"{scene.name}: written by mcvar.scene.save_scene", meta]),
                     encoding="utf-8")
     return path
-
-
-def _y_rotation(angle_deg):
-    t = math.radians(angle_deg)
-    c, s = math.cos(t), math.sin(t)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 # --------------------------------------------------------------------------

@@ -67,6 +67,8 @@ it on the asymmetric Cornell box and with a sparse environment map.
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
+from typing import Callable
 import json
 import math
 import os
@@ -373,6 +375,44 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
     >>> d = to_mitsuba(load_scene("cornell"), res=32, spp=64)  # doctest: +SKIP
     >>> image = mi.render(mi.load_dict(d))                     # doctest: +SKIP
     """
+    mi = _mitsuba()
+    return scene_dict(scene, res=res, spp=spp, integrator=integrator, max_depth=max_depth, folder=folder,
+                      transforms=MitsubaTransforms(
+                          look_at=lambda o, t, u: mi.ScalarTransform4f().look_at(origin=o, target=t, up=u),
+                          rotate_y=lambda deg: mi.ScalarTransform4f().rotate(axis=[0, 1, 0], angle=deg),
+                          write_exr=lambda path, image: mi.Bitmap(image).write(str(path))))
+
+
+@dataclass(frozen=True)
+class MitsubaTransforms:
+    """How :func:`scene_dict` builds the dictionary's ``to_world`` values and writes EXR images.
+
+    :func:`to_mitsuba` passes Mitsuba's own (``mi.ScalarTransform4f``,
+    ``mi.Bitmap``), for ``mi.load_dict``; :func:`mcvar.scene.save_scene`
+    passes XML records and :func:`mcvar.images.write_image`, so that writing a
+    scene file needs no Mitsuba.
+
+    Attributes
+    ----------
+    look_at : callable
+        ``look_at(origin, target, up)`` with three lists of 3 floats.
+    rotate_y : callable
+        ``rotate_y(degrees)``: a rotation about +y.
+    write_exr : callable
+        ``write_exr(path, image)`` with a float32 ``(H, W, 3)`` image.
+    """
+
+    look_at: Callable
+    rotate_y: Callable
+    write_exr: Callable
+
+
+def scene_dict(scene: Scene, *, res, spp: int, integrator: str = "path", max_depth: int | None = None,
+               folder=None, transforms: MitsubaTransforms) -> dict:
+    """:func:`to_mitsuba`'s dictionary with ``transforms`` building its
+    ``to_world`` values and writing its EXR images (the one mapping from
+    Scene to Mitsuba, shared by :func:`to_mitsuba` and
+    :func:`mcvar.scene.save_scene`)."""
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
     width, height = _as_res(res)
@@ -407,7 +447,8 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
     inward = {s: _sphere_emission_inward(scene, s) for s in range(scene.n_spheres)
               if np.any(scene.prim_emission[n_tri + s] > 0) and scene.prim_two_sided_emission[n_tri + s]}
 
-    mi = _mitsuba()
+    if not isinstance(transforms, MitsubaTransforms):
+        raise TypeError(f"transforms must be a MitsubaTransforms; got {type(transforms).__name__}")
     cam = scene.camera
     d: dict = {"type": "scene"}
     d["integrator"] = {"type": integrator}
@@ -416,9 +457,8 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
     d["sensor"] = {
         "type": "perspective", "fov": float(cam.fov_deg), "fov_axis": "x",
         "near_clip": 1e-4 * extent, "far_clip": 1e2 * extent,
-        "to_world": mi.ScalarTransform4f().look_at(origin=[float(x) for x in cam.position],
-                                                   target=[float(x) for x in cam.look_at],
-                                                   up=[float(x) for x in cam.up]),
+        "to_world": transforms.look_at([float(x) for x in cam.position], [float(x) for x in cam.look_at],
+                                       [float(x) for x in cam.up]),
         "sampler": {"type": "independent", "sample_count": spp},
         "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
                  "pixel_format": "rgb", "component_format": "float32"},
@@ -465,10 +505,9 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         else:
             bitmap = _envmap_bitmap(env)
             path = _write_once(folder, "envmap", ".exr", bitmap.tobytes() + str(bitmap.shape).encode(),
-                               lambda p, b=bitmap: mi.Bitmap(b).write(str(p)))
+                               lambda p, b=bitmap: transforms.write_exr(p, b))
             d["environment"] = {"type": "envmap", "filename": path,
-                                "to_world": mi.ScalarTransform4f().rotate(axis=[0, 1, 0],
-                                                                          angle=ENVMAP_ROTATION_DEG)}
+                                "to_world": transforms.rotate_y(ENVMAP_ROTATION_DEG)}
     return d
 
 
