@@ -21,7 +21,8 @@ from pathlib import Path
 
 from .experiments.chart import CHART_COLUMNS, ChartResult, measure_chart
 from .plotting import plt, save_figure
-from .report import _CSS, _PRINT_JS, _clauses, _csv, _details, _fmt, _img, _table
+from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, clauses as _clauses, details as _details,
+                    fmt as _fmt, img as _img, table as _table, write_csv as _csv)
 
 __all__ = ["chart_report", "chart_section", "write_chart", "plot_chart"]
 

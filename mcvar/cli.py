@@ -130,7 +130,7 @@ def _cmd_converge(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from .report import demo
+    from .demo import demo
 
     paths = demo(args.out, progress=not args.quiet)
     if not args.no_best:

@@ -17,12 +17,10 @@ trade of each method and sampler:
   ``MSE x time`` in one table, best first, with the figures embedded as
   base64 PNG (one file to mail or open anywhere).
 
-:func:`demo` is the README's ``mcvar demo``: the Cornell box report.
+The README's ``mcvar demo`` (the Cornell box report) is :func:`mcvar.demo.demo`.
 """
 from __future__ import annotations
 
-import base64
-import csv
 import html
 import io
 import os
@@ -32,34 +30,16 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .experiments import SweepResult, make_target, scene_target, sweep
+from .experiments import SweepResult, make_target, sweep
 from .experiments.chart import LECTURE_CHART
 from .images import linear_to_srgb
+from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, clauses as _clauses, data_uri as _data_uri,
+                    details as _details, fmt as _fmt, img as _img, table as _table, write_csv as _csv)
 from .plotting import plot_loglog, plt, save_figure
 
-__all__ = ["convergence_report", "demo", "write_report", "pareto_front", "lecture_claim", "DEMO_SETTINGS",
-           "LECTURE_CLAIMS"]
-
-#: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
-#: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
-#: took 50-76 s there; 64 x 64 with those levels took 9 minutes). The reference is
-#: 8 chunks of 256 spp. ``chart``: keyword arguments of :func:`mcvar.experiments.measure_chart`
-#: for the report's measured rendering-methods chart (written to ``out/chart``; None: no chart).
-DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256,
-                     chart=dict(quick=True))
+__all__ = ["convergence_report", "write_report", "pareto_front", "lecture_claim", "LECTURE_CLAIMS"]
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
-
-
-def _csv(path: Path, rows: list[dict]) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
-    return path
 
 
 def _fit_rows(result: SweepResult) -> list[dict]:
@@ -230,35 +210,8 @@ def _plot_images(result: SweepResult, path: Path) -> Path:
 # HTML
 # --------------------------------------------------------------------------
 
-def _fmt(x, digits=3) -> str:
-    if isinstance(x, (bool, np.bool_)):
-        return "yes" if x else "no"
-    if isinstance(x, (int, np.integer)):
-        return str(x)
-    if not np.isfinite(x):
-        return str(x)
-    return f"{x:.{digits}g}"
-
-
-def _table(header, rows, *, cls: str = "") -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    attr = f' class="{cls}"' if cls else ""
-    return f"<table{attr}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
 def _slope(fit) -> str:
     return f"{fit.slope:.2f} ± {fit.slope_stderr:.2f}" if fit is not None else "n/a"
-
-
-def _data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-
-
-def _img(path: Path, alt: str) -> str:
-    return f'<figure><img alt="{html.escape(alt)}" src="{_data_uri(Path(path).read_bytes())}"/>' \
-           f"<figcaption>{html.escape(alt)}</figcaption></figure>"
 
 
 def _png(rgb8: np.ndarray) -> bytes:
@@ -350,45 +303,6 @@ def _verdict_table(result: SweepResult) -> str:
                      claim[1] if claim else "—", claim[0] if claim else "—"))
     return _table(("method", "unbiased (measured)", "consistent (measured)", "verdict",
                    "lecture: unbiased?", "lecture: consistent?"), rows, cls="verdicts")
-
-
-def _clauses(text: str) -> list[str]:
-    """Split evidence at the '; ' that are outside parentheses."""
-    parts, depth, start = [], 0, 0
-    for i, ch in enumerate(text):
-        depth += (ch == "(") - (ch == ")")
-        if depth == 0 and text.startswith("; ", i):
-            parts.append(text[start:i])
-            start = i + 2
-    return [p for p in parts + [text[start:]] if p]
-
-
-def _details(summary: str, *content: str, open_: bool = False) -> str:
-    attr = " open" if open_ else ""
-    return f"<details{attr}><summary>{html.escape(summary)}</summary>{''.join(content)}</details>"
-
-
-_CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:1.5em auto;padding:0 1em;color:#222;
-line-height:1.45}h1{font-size:1.6em;margin-bottom:.2em}h2{margin-top:1.4em}.lead{color:#555;margin-top:0}
-table{border-collapse:collapse;font-size:13px;margin:.5em 0 1em}td,th{border:1px solid #ccc;padding:3px 7px;
-text-align:right}th{background:#f3f3f3}td:first-child,td:nth-child(2){text-align:left}
-table.verdicts td{text-align:center}table.verdicts td:first-child{text-align:left;font-weight:600}
-img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}code{background:#f3f3f3}
-.tiles{display:flex;flex-wrap:wrap;gap:12px}.col{display:flex;flex-direction:column}
-.tile img{width:256px;height:auto;image-rendering:pixelated}
-.note{font-size:12px;color:#555}.scroll{overflow-x:auto}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
-margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
-table.chart td,table.chart th{text-align:center}table.chart td:first-child,table.chart td:nth-child(2){text-align:left}
-table.chart td:first-child{font-weight:600}table.chart td:last-child{text-align:left;max-width:30em}
-table.chart td.differs{background:#fbe2c5}table.chart td.agrees{background:#e3f1e0}
-@media print{body{max-width:none;margin:0}details{border:none;padding:0}
-details::details-content{content-visibility:visible;display:contents}
-summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}
-.scroll{overflow:visible}table.configs{font-size:9px}}"""
-
-# Opens every collapsed section before printing (print CSS covers browsers with ::details-content).
-_PRINT_JS = ("<script>addEventListener('beforeprint',function(){document.querySelectorAll('details')"
-             ".forEach(function(d){d.open=true})})</script>")
 
 
 def write_report(result: SweepResult, out, *, elapsed: float | None = None,
@@ -584,36 +498,3 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
                    cache_dir=Path(out) / ".cache", progress=progress, image_metrics=True)
     elapsed = time.perf_counter() - start
     return write_report(result, out, elapsed=elapsed, sections=sections)
-
-
-def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str, Path]:
-    """The default Cornell-box convergence report (``mcvar demo``).
-
-    Runs :func:`convergence_report` on ``'cornell'`` with
-    :data:`DEMO_SETTINGS`: path tracing with Russian roulette (unbiased),
-    path tracing stopped at depth 3 (biased: the light of longer paths is
-    missing) and direct lighting, each with the random, jittered and Sobol
-    samplers at 1, 4, 16 and 64 spp, 6 replicates, 64 x 64 pixels, against a
-    reference of 8 x 256 spp (its own variance enters every test).
-
-    The report includes the lecture's Rendering Algorithm Chart measured by
-    ``mcvar chart --quick`` (:mod:`mcvar.chart_report`; its files in
-    ``out/chart``).
-    """
-    s = DEMO_SETTINGS
-    sections, chart_paths = [], {}
-    if s.get("chart") is not None:
-        from .chart_report import chart_section, write_chart
-        from .experiments import measure_chart
-
-        chart = measure_chart(workers=workers, progress=progress, cache_dir=Path(out) / "chart" / ".cache",
-                              **s["chart"])
-        chart_paths = write_chart(chart, Path(out) / "chart", command="mcvar chart --quick")
-        sections.append(chart_section(chart, chart_paths["png"])
-                        + "<p class='note'>Also in <code>chart/chart.html</code> and <code>chart/chart.csv"
-                          "</code> beside this page.</p>")
-    target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
-    paths = convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
-                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
-                               workers=workers, progress=progress, sections=sections)
-    return {**paths, **{f"chart_{k}": v for k, v in chart_paths.items()}}

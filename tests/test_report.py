@@ -112,10 +112,12 @@ def test_cli_converge_on_an_integrand(tmp_path, capsys):
 
 def test_demo_runs_its_settings(tmp_path, monkeypatch, capsys):
     pytest.importorskip("mcvar.integrators")
-    tiny = dict(report.DEMO_SETTINGS, methods=("path", "path:2"), samplers=("random",), spp=(1, 4, 16),
+    import mcvar.demo
+
+    tiny = dict(mcvar.demo.DEMO_SETTINGS, methods=("path", "path:2"), samplers=("random",), spp=(1, 4, 16),
                 replicates=3, res=4, chart=dict(quick=True, methods=("path",), res=4, replicates=3,
                                                 levels=(1, 4), reference_spp=16, reference_chunks=2))
-    monkeypatch.setattr(report, "DEMO_SETTINGS", tiny)
+    monkeypatch.setattr(mcvar.demo, "DEMO_SETTINGS", tiny)
     assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
     page = (tmp_path / "report.html").read_text()
     assert "Convergence report: cornell" in page and "4 x 4" in page
