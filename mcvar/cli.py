@@ -105,7 +105,13 @@ def _adaptive_default(args) -> bool:
     from .adaptive import ADAPTIVE_INTEGRATORS
 
     return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
-            and args.sampler not in ("grid", "jittered") and args.spp >= 16)
+            and not _square_sampler(args.sampler) and args.spp >= 16)
+
+
+def _square_sampler(name: str) -> bool:
+    from .samplers import SAMPLERS
+
+    return name in SAMPLERS and SAMPLERS[name].square
 
 
 def _cmd_converge(args) -> int:

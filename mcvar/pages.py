@@ -26,7 +26,7 @@ def write_csv(path: Path, rows: list[dict]) -> Path:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
+            writer.writerow({k: (repr(float(v)) if isinstance(v, float) else v) for k, v in row.items()})
     return path
 
 

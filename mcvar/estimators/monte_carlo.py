@@ -15,11 +15,10 @@ import numpy as np
 from scipy import stats
 
 from .._validation import as_array, as_rng, check_choice, check_count, check_positive, check_probability
-from ..samplers import digital_shift, get_sampler
+from ..samplers import SAMPLERS, digital_shift, get_sampler
 
 _METHODS = ("iid", "replicates")
 _BATCH = 1 << 20          # rows evaluated at once: bounds memory, not results
-_IID_SAMPLERS = ("random",)
 
 
 # --------------------------------------------------------------------------
@@ -335,10 +334,12 @@ def _resolve_sampler(sampler):
 
 
 def _resolve_replicates(replicates, name) -> int:
+    # a named iid sampler needs no replicates; a callable's points are not known to be iid
+    iid = name is not None and SAMPLERS[name].iid
     if replicates is None:
-        return 1 if name in _IID_SAMPLERS else 16
+        return 1 if iid else 16
     r = check_count(replicates, "replicates")
-    if r == 1 and name is not None and name not in _IID_SAMPLERS:
+    if r == 1 and name is not None and not iid:
         raise ValueError(f"replicates must be >= 2 for sampler {name!r}: the iid standard error is wrong "
                          "for stratified and QMC points, whose samples are dependent; got 1")
     return r
