@@ -166,6 +166,31 @@ def _cmd_chart(args) -> int:
     return 0
 
 
+class _RegistryHelp(str):
+    """A help text naming the registered methods, filled in only when help is shown
+    (argparse formats help with ``%``): building the parser imports no integrator."""
+
+    def __new__(cls, template: str, what: str):
+        obj = super().__new__(cls, template)
+        obj.what = what
+        return obj
+
+    def __mod__(self, params):
+        if self.what == "samplers":
+            from .samplers import SAMPLERS
+
+            names = ", ".join(SAMPLERS)
+        elif self.what == "rows":
+            from .experiments.chart import chart_methods
+
+            names = ", ".join(chart_methods())
+        else:
+            from .integrators import METHODS
+
+            names = ", ".join(METHODS)
+        return str.__mod__(str(self).replace("{" + self.what + "}", names.replace("%", "%%")), params)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mcvar", description="Monte Carlo estimation and its variance, measured.")
@@ -194,11 +219,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene name: cornell, cornell-spheres, checkerboard, furnace, quad-environment")
     p.add_argument("--res", type=int, default=64, help="image width and height in pixels (default 64)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
-                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster, "
-                                                          "position: any method of mcvar.integrators.METHODS")
-    p.add_argument("--sampler", default="sobol", help="pixel sampler name from mcvar.samplers (default sobol; "
-                                                        "the previous default was random)")
+    p.add_argument("--integrator", default="path",
+                   help=_RegistryHelp("rendering method, any of mcvar.integrators.METHODS: {methods} "
+                                      "(default path: NEE + MIS)", "methods"))
+    p.add_argument("--sampler", default="sobol",
+                   help=_RegistryHelp("pixel sampler, any of mcvar.samplers.SAMPLERS: {samplers} (default sobol; "
+                                      "the previous default was random)", "samplers"))
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
@@ -242,7 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
                                       "estimators (integrands); default: path,path:2,direct or "
                                       "every estimator")
     p.add_argument("--samplers", type=_name_list, default=None,
-                   help="comma-separated sampler names (default random,jittered,sobol)")
+                   help=_RegistryHelp("comma-separated sampler names ({samplers}; default "
+                                      "random,jittered,sobol)", "samplers"))
     p.add_argument("--spp", type=_int_list, default=None,
                    help="comma-separated spp (or N) levels (default 1,4,16,64 for scenes, "
                         "1,4,...,4096 for integrands)")
@@ -279,8 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="16 x 16 pixels, 10 replicates (under 2 minutes "
                                                         "for spp methods on 2 cores)")
     p.add_argument("--methods", type=_name_list, default=None,
-                   help="comma-separated chart methods (raster, path, path_depth3, light, bdpt, pssmlt, "
-                        "photon, sppm, radiosity); default: every registered one")
+                   help=_RegistryHelp("comma-separated chart methods ({rows}; 'path_depth3' is an alias of "
+                                      "'path:3'); default: every registered one", "rows"))
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)

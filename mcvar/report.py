@@ -31,13 +31,13 @@ import numpy as np
 from scipy import stats
 
 from .experiments import SweepResult, make_target, sweep
-from .experiments.chart import LECTURE_CHART
+from .experiments.chart import lecture_chart_claim, split_row
 from .images import linear_to_srgb
 from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, clauses as _clauses, data_uri as _data_uri,
                     details as _details, fmt as _fmt, img as _img, table as _table, write_csv as _csv)
 from .plotting import plot_loglog, plt, save_figure
 
-__all__ = ["convergence_report", "write_report", "pareto_front", "lecture_claim", "LECTURE_CLAIMS"]
+__all__ = ["convergence_report", "write_report", "pareto_front", "lecture_claim"]
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
 
@@ -260,12 +260,8 @@ def _image_tiles(result: SweepResult) -> str:
             f"black 0 to yellow {vmax:.3g} (99th percentile; brighter pixels clipped).</p>")
 
 
-#: The lecture's claims: 'Rendering Algorithm Chart' (consistent?, unbiased?)
-#: per integrator (the chart's table, :data:`mcvar.experiments.chart.LECTURE_CHART`,
-#: without the fixed-depth row), and the 'Bias & Consistency' / 'Consistent Or
-#: Unbiased?' slides for the estimators of the lecture target.
-LECTURE_CLAIMS = {**{m: c for m, c in LECTURE_CHART.items() if m != "path_depth3"},
-                  "mlt": LECTURE_CHART["pssmlt"]}
+#: The lecture's 'Bias & Consistency' / 'Consistent Or Unbiased?' slides for the estimators of the
+#: lecture target (a rendering method's claim is the chart's: :func:`lecture_claim`).
 LECTURE_ESTIMATOR_CLAIMS = {
     "uniform": ("yes", "yes"), "grid": ("yes", "no"), "single": ("no", "yes"), "undivided": ("no", "no"),
 }
@@ -281,18 +277,14 @@ def lecture_claim(target: str, method: str):
     """
     if target == "lecture":
         return LECTURE_ESTIMATOR_CLAIMS.get(method)
-    if ":" in method or "+" in method:
-        return None
-    if method in LECTURE_CLAIMS:  # the slide's own rows are quoted as they are
-        return LECTURE_CLAIMS[method]
+    # the chart's own claim (the slide's row, else the method's registered ``lecture``);
+    # 'mlt' is a target's name for PSSMLT
     try:
-        from .integrators import METHODS  # the registry, for methods the slide does not name
-        claim = getattr(METHODS.get(method), "lecture", None)
-        if claim is not None:
-            return tuple(claim)
-    except ImportError:
-        pass
-    return None
+        if "+" in method or split_row(method)[1] is not None:
+            return None
+        return lecture_chart_claim("pssmlt" if method == "mlt" else method)
+    except (TypeError, ValueError, ImportError):
+        return None
 
 
 def _verdict_table(result: SweepResult) -> str:

@@ -156,6 +156,8 @@ def lecture_target() -> Target:
 
 
 _METHOD = re.compile(r"^([a-z_]+)(?::(\d+))?$")
+_DEPTH_ALIAS = re.compile(r"^([a-z_]+?)_depth(\d+)$")   # 'path_depth3' -> 'path:3'
+
 
 
 def parse_method(method: str) -> tuple[str, int | None]:
@@ -163,7 +165,9 @@ def parse_method(method: str) -> tuple[str, int | None]:
 
     ``'path'`` is path tracing with Russian roulette (unbiased), ``'path:3'``
     the same integrator stopped after 3 bounces (``max_depth=3``: biased,
-    light carried by longer paths is missing).
+    light carried by longer paths is missing). ``'path:3'`` is the one
+    spelling of a fixed depth; ``'path_depth3'`` (the chart's former
+    spelling) is accepted as an alias of it.
 
     Examples
     --------
@@ -171,10 +175,12 @@ def parse_method(method: str) -> tuple[str, int | None]:
     ('path', 3)
     >>> parse_method("direct")
     ('direct', None)
+    >>> parse_method("path_depth3")
+    ('path', 3)
     """
     if not isinstance(method, str):
         raise TypeError(f"method must be a string 'integrator[:max_depth]'; got {type(method).__name__}")
-    m = _METHOD.match(method)
+    m = _METHOD.match(_DEPTH_ALIAS.sub(r"\1:\2", method))
     if m is None or (m.group(2) is not None and int(m.group(2)) < 1):
         raise ValueError(f"method must look like 'path' or 'path:3' (integrator[:max_depth >= 1]); "
                          f"got {method!r}")

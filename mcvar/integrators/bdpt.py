@@ -324,4 +324,6 @@ def _check_bdpt(scene, options):
 register(Method(
     "bdpt", "splat", run_bdpt_batch,
     "bidirectional path tracing: every (s, t) strategy, weighted by MIS (heuristic=; mis=False: uniform)",
-    options={"mis": True, "strategies": False}, check_scene=_check_bdpt, lecture=("yes", "yes")))
+    options={"mis": True, "strategies": False}, check_scene=_check_bdpt, lecture=("yes", "yes"),
+    chart_row="Bidirectional Path Tracing",
+    theory=("yes", "yes", "every (s, t) connection strategy weighted by MIS: unbiased and consistent")))

@@ -70,6 +70,7 @@ from ..scene import Scene
 from ..tracer import Tracer
 from ..warps import _plane_coords, square_to_cosine_hemisphere, square_to_uniform_triangle
 from .film import BatchJob, BatchResult, camera_result
+from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import camera_rays
 
@@ -594,4 +595,12 @@ register(Method(
     "radiosity", "first_hit", run_radiosity_batch,
     "finite-element radiosity: patches, ray-cast form factors, (I - rho F) B = E, flat lookup at the first hit",
     options=dict(patch_size=70.0, rays_per_side=256, emitter_rays=1 << 18, solver="jacobi"),
-    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no")))
+    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no"),
+    chart_row="Finite Element Radiosity",
+    # the chart: patch size halves as the level quadruples; form-factor rays, emitter rays and pixel
+    # samples refined with it (at fixed spp the pixel-sampling noise would hide the shrinking mesh bias)
+    knob=scaled_knob("mesh refinement (patch size 280 / sqrt(level))", "radiosity",
+                     {"spp": (4, 1), "patch_size": (280.0, -0.5), "rays_per_side": (16, 0.5),
+                      "emitter_rays": (4096, 1)}),
+    theory=("yes", "no", "radiosity's mesh: piecewise-constant patches bias the image; the bias falls only as "
+                         "the mesh is refined (its knob here), never with spp")))
