@@ -263,10 +263,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "MODULE (importable from the current folder); methods from --methods or the "
                         "module's METHODS; reference from --reference, EXACT or reference(rng)")
     p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
-                   default=None, help="comma-separated integrators (scenes; 'path:3' stops paths at "
+                   default=None, help="comma-separated rendering methods (scenes; 'path:3' stops paths at "
                                       "depth 3, 'path' uses Russian roulette) or the problem's "
                                       "estimators (integrands); default: path,path:2,direct or "
-                                      "every estimator")
+                                      "every estimator (--integrators and --estimators are aliases)")
     p.add_argument("--samplers", type=_name_list, default=None,
                    help=_RegistryHelp("comma-separated sampler names ({samplers}; default "
                                       "random,jittered,sobol)", "samplers"))
