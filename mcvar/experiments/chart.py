@@ -232,7 +232,7 @@ def _knob_for(method: str) -> tuple[Knob, str]:
             f"knob options {missing} not accepted by the registered method: measured in spp")
 
 
-def emitter_pixels(scene: str = "cornell", res: int = 16, *, subpixels: int = 8,
+def emitter_pixels(scene="cornell", res: int = 16, *, subpixels: int = 8,
                    refine: int = 256) -> np.ndarray:
     """Pixels that see an emitter directly, shape ``(res, res)`` bool.
 
@@ -280,7 +280,7 @@ def emitter_pixels(scene: str = "cornell", res: int = 16, *, subpixels: int = 8,
     return flagged
 
 
-def _chart_evaluate(scene: str, res: int, knobs: dict, method: str, sampler: str, level: int, rng):
+def _chart_evaluate(scene, res: int, knobs: dict, method: str, sampler: str, level: int, rng):
     from ..integrators import render
 
     options = dict(knobs[method].options(level))
@@ -288,7 +288,7 @@ def _chart_evaluate(scene: str, res: int, knobs: dict, method: str, sampler: str
     return np.asarray(result.image, dtype=np.float64)
 
 
-def _chart_reference(scene: str, res: int, spp: int, rng):
+def _chart_reference(scene, res: int, spp: int, rng):
     from ..integrators import render
 
     result = render(_scene(scene), integrator="path", spp=spp, res=res, sampler="random", rng=rng,
@@ -296,7 +296,7 @@ def _chart_reference(scene: str, res: int, spp: int, rng):
     return np.asarray(result.image, dtype=np.float64)
 
 
-def chart_target(scene: str = "cornell", *, res: int = 16, reference_spp: int = 1024,
+def chart_target(scene="cornell", *, res: int = 16, reference_spp: int = 1024,
                  reference_chunks: int = 8, knobs: dict | None = None) -> Target:
     """The chart's :class:`~mcvar.experiments.targets.Target`: ``scene`` rendered by a
     chart method at a level of its knob (the sweep's ``spp`` is the level).
@@ -307,15 +307,16 @@ def chart_target(scene: str = "cornell", *, res: int = 16, reference_spp: int = 
     """
     res = check_count(res, "res")
     reference_spp, reference_chunks = _check_reference_settings(reference_spp, reference_chunks)
-    _scene(scene)
+    loaded = _scene(scene)          # the target owns the loaded scene
+    scene = loaded.name if not isinstance(scene, str) else scene
     knobs = dict(knobs if knobs is not None else {m: _knob_for(m)[0] for m in chart_methods()})
     # each knob's options at levels 1 and 4 describe it in the cache key
     described = ";".join(f"{m}={k.counts}:{sorted(k.options(1).items())}:{sorted(k.options(4).items())}"
                          for m, k in sorted(knobs.items()))
-    return Target(name=f"{scene} chart", evaluate=partial(_chart_evaluate, scene, res, knobs),
+    return Target(name=f"{scene} chart", evaluate=partial(_chart_evaluate, loaded, res, knobs),
                   key=f"chart;scene={scene};res={res};{described}", methods=tuple(knobs),
                   samplers=("random",), spp=(1, 4, 16, 64),
-                  reference_task=partial(_chart_reference, scene, res, reference_spp),
+                  reference_task=partial(_chart_reference, loaded, res, reference_spp),
                   reference_chunks=reference_chunks,
                   reference_settings=f"integrator=path;spp={reference_spp};sampler=random;res={res}")
 
@@ -474,7 +475,8 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     start = time.perf_counter()
     # one target per method, its key naming that method's knob only, and the reference's
     # target naming none: cached runs and the reference do not depend on which methods run
-    targets = {m: chart_target(scene, res=settings["res"], reference_spp=settings["reference_spp"],
+    loaded = _scene(scene)      # one Scene for every target of this chart
+    targets = {m: chart_target(loaded, res=settings["res"], reference_spp=settings["reference_spp"],
                                reference_chunks=settings["reference_chunks"],
                                knobs={m: knobs[m]} if m else {})
                for m in (None, *methods)}
@@ -483,7 +485,7 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     try:
         reference = compute_reference(targets[None], seed=seed, executor=executor, cache_dir=cache_dir,
                                       progress=progress)
-        mask = ~emitter_pixels(scene, settings["res"])
+        mask = ~emitter_pixels(loaded, settings["res"])
         sweeps, rows = {}, []
         for m in methods:
             knob = knobs[m]

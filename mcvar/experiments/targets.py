@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from functools import lru_cache, partial
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -187,14 +187,15 @@ def parse_method(method: str) -> tuple[str, int | None]:
     return m.group(1), (int(m.group(2)) if m.group(2) is not None else None)
 
 
-@lru_cache(maxsize=8)
-def _scene(name: str):
-    from ..scene import load_scene
+def _scene(scene):
+    """The :class:`~mcvar.scene.Scene` called ``scene`` (a Scene is returned as is). Loading
+    takes well under a millisecond: a target loads its scene once and keeps it (no cache)."""
+    from ..scene import Scene, load_scene
 
-    return load_scene(name)
+    return scene if isinstance(scene, Scene) else load_scene(scene)
 
 
-def _scene_evaluate(scene: str, res: int, method: str, sampler: str, spp: int, rng) -> np.ndarray:
+def _scene_evaluate(scene, res: int, method: str, sampler: str, spp: int, rng) -> np.ndarray:
     from ..integrators import render
 
     integrator, max_depth = parse_method(method)
@@ -203,7 +204,7 @@ def _scene_evaluate(scene: str, res: int, method: str, sampler: str, spp: int, r
     return np.asarray(result.image, dtype=np.float64)
 
 
-def _scene_reference(scene: str, res: int, integrator: str, spp: int, sampler: str, rng) -> np.ndarray:
+def _scene_reference(scene, res: int, integrator: str, spp: int, sampler: str, rng) -> np.ndarray:
     return _scene_evaluate(scene, res, integrator, sampler, spp, rng)
 
 
@@ -233,12 +234,12 @@ def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, referen
     res = check_count(res, "res")
     reference_spp, reference_chunks = _check_reference_settings(reference_spp, reference_chunks)
     parse_method(reference_integrator)
-    _scene(name)  # fail early on an unknown scene
-    return Target(name=name, evaluate=partial(_scene_evaluate, name, res),
+    scene = _scene(name)  # fails early on an unknown scene; the target owns the loaded scene
+    return Target(name=name, evaluate=partial(_scene_evaluate, scene, res),
                   key=f"scene={name};res={res}",
                   methods=("path", "path:2", "direct"), samplers=("random", "jittered", "sobol"),
                   spp=(1, 4, 16, 64),
-                  reference_task=partial(_scene_reference, name, res, reference_integrator,
+                  reference_task=partial(_scene_reference, scene, res, reference_integrator,
                                          reference_spp, "random"),
                   reference_chunks=reference_chunks,
                   reference_settings=f"integrator={reference_integrator};spp={reference_spp};"

@@ -268,10 +268,6 @@ class Emitters:
 
 # -- light subpaths ------------------------------------------------------------
 
-#: :meth:`VisibleLights.image` by content digest (a few entries per process).
-_IMAGES: dict = {}
-
-
 class VisibleLights:
     """Area lights seen directly by the camera, integrated exactly over every pixel.
 
@@ -359,8 +355,9 @@ class VisibleLights:
         """``(W H, 3)``: per flat pixel ``i W + j``, the box-filtered radiance
         of the exactly handled lights, occlusion ignored (the pixel integral of ``g``).
 
-        Cached per process by content (camera, lights, resolution): every
-        batch of a render asks for it. Read-only.
+        Cached by this object, by content (camera, lights, resolution): keep
+        one ``VisibleLights`` per render (every batch asks for the image) and
+        the cache lives and dies with it. Read-only.
         """
         from ..scene import _film_res
 
@@ -371,13 +368,14 @@ class VisibleLights:
             *(self.scene.light_origin[k] for k in self.lights), *(self.scene.light_edge1[k] for k in self.lights),
             *(self.scene.light_edge2[k] for k in self.lights),
             *(self.scene.light_radiance[k] for k in self.lights)))).hexdigest()
-        img = _IMAGES.get(key)
+        images = self.__dict__.setdefault("_images", {})
+        img = images.get(key)
         if img is None:
             img = self._image(width, height)
             img.flags.writeable = False
-            if len(_IMAGES) >= 8:
-                _IMAGES.pop(next(iter(_IMAGES)))
-            _IMAGES[key] = img
+            if len(images) >= 8:
+                images.pop(next(iter(images)))
+            images[key] = img
         return img
 
     def _image(self, width, height):
