@@ -43,7 +43,7 @@ def _name_list(text: str) -> list[str]:
 def _cmd_samplers(args) -> int:
     from .sampler_report import write_samplers_report
 
-    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, seed=args.seed,
+    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, rng=args.seed,
                                   progress=not args.quiet)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -128,7 +128,7 @@ def _cmd_converge(args) -> int:
         target = args.target
     paths = convergence_report(target, args.out, methods=args.methods, samplers=args.samplers,
                                spp=args.spp, replicates=args.replicates, res=args.res,
-                               seed=args.seed, workers=args.workers, progress=not args.quiet,
+                               rng=args.seed, workers=args.workers, progress=not args.quiet,
                                reference=args.reference)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -158,7 +158,7 @@ def _cmd_demo(args) -> int:
 def _cmd_chart(args) -> int:
     from .chart_report import chart_report
 
-    paths = chart_report(args.out, quick=args.quick, methods=args.methods, seed=args.seed,
+    paths = chart_report(args.out, quick=args.quick, methods=args.methods, rng=args.seed,
                          workers=args.workers, progress=not args.quiet,
                          command="mcvar " + " ".join(sys.argv[1:]))
     for key, path in paths.items():

@@ -20,7 +20,7 @@ __all__ = ["demo", "DEMO_SETTINGS"]
 #: 8 chunks of 256 spp. ``chart``: keyword arguments of :func:`mcvar.experiments.measure_chart`
 #: for the report's measured rendering-methods chart (written to ``out/chart``; None: no chart).
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256,
+                     spp=(1, 4, 16, 64), replicates=6, res=64, rng=0, reference_spp=256,
                      chart=dict(quick=True))
 
 
@@ -49,6 +49,6 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
                           "</code> beside this page.</p>")
     target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
     paths = convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
-                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
+                               replicates=s["replicates"], res=s["res"], rng=s.get("rng", s.get("seed", 0)),
                                workers=workers, progress=progress, sections=sections)
     return {**paths, **{f"chart_{k}": v for k, v in chart_paths.items()}}

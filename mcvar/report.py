@@ -22,6 +22,7 @@ The README's ``mcvar demo`` (the Cornell box report) is :func:`mcvar.demo.demo`.
 from __future__ import annotations
 
 import html
+from dataclasses import replace
 import io
 import os
 import time
@@ -30,7 +31,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .experiments import SweepResult, make_target, sweep
+from ._validation import seed_alias, settings_with
+from .experiments import SweepResult, SweepSettings, make_target, sweep
 from .experiments.chart import lecture_chart_claim, split_row
 from .images import linear_to_srgb
 from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, clauses as _clauses, data_uri as _data_uri,
@@ -454,9 +456,8 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     return {"html": paths.pop("html"), **paths}
 
 
-def convergence_report(target, out, *, methods=None, samplers=None, spp=None, replicates: int = 8,
-                       res: int = 32, seed: int = 0, workers: int | None = None,
-                       progress: bool = True, executor=None, reference=None, sections=()) -> dict[str, Path]:
+def convergence_report(target, out, settings: SweepSettings | None = None, *, executor=None, reference=None,
+                       sections=(), **options) -> dict[str, Path]:
     """Sweep ``target`` and write its convergence report into ``out``.
 
     Parameters
@@ -473,7 +474,12 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
         (fixed depth) and ``direct``; samplers random, jittered, sobol;
         spp 1, 4, 16, 64. Integrands: every estimator of the problem; N = 1,
         4, ..., 4096.
-    replicates, res, seed, workers, executor, reference
+    settings : SweepSettings, optional
+        The sweep's settings; the keywords ``methods``, ``samplers``,
+        ``spp``, ``replicates`` (default 8), ``res`` (32), ``rng`` (0;
+        ``seed=`` is its deprecated alias), ``workers`` and ``progress`` are
+        its fields and replace them.
+    executor, reference
         As in :func:`mcvar.experiments.sweep`.
     sections : sequence of str, optional
         Further HTML sections for the page (:func:`write_report`).
@@ -483,10 +489,11 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
     dict of str to Path
         ``html`` (the summary page) first, then the CSVs and figures.
     """
-    target = make_target(target, res=res)
+    settings = settings_with(SweepSettings, settings, seed_alias(options, "convergence_report"),
+                             "convergence_report")
+    target = make_target(target, res=settings.res)
     start = time.perf_counter()
-    result = sweep(target, methods=methods, samplers=samplers, spp=spp, replicates=replicates,
-                   seed=seed, reference=reference, executor=executor, workers=workers,
-                   cache_dir=Path(out) / ".cache", progress=progress, image_metrics=True)
+    result = sweep(target, replace(settings, image_metrics=True), reference=reference, executor=executor,
+                   cache_dir=Path(out) / ".cache")
     elapsed = time.perf_counter() - start
     return write_report(result, out, elapsed=elapsed, sections=sections)

@@ -48,8 +48,23 @@ def _usable_n(name: str, n: int) -> int:
     return math.isqrt(n) ** 2 if SAMPLERS[name].square else n
 
 
-def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, seed=0,
-                      progress: bool = False) -> list[dict]:
+def _root(rng, seed, where: str) -> np.random.SeedSequence:
+    """The report's root SeedSequence from ``rng`` (None: 0, an int, a SeedSequence or a
+    Generator's own sequence); ``seed`` is the deprecated alias of ``rng``."""
+    if seed is not None:
+        if rng is not None:
+            raise TypeError(f"{where} got both rng= and its deprecated alias seed=; pass rng= only")
+        warnings.warn(f"{where}(seed=...) is deprecated: pass rng=", DeprecationWarning, stacklevel=3)
+        rng = seed
+    if isinstance(rng, np.random.SeedSequence):
+        return rng
+    if isinstance(rng, np.random.Generator):
+        return rng.bit_generator.seed_seq
+    return np.random.SeedSequence(check_count(0 if rng is None else rng, "rng", allow_zero=True))
+
+
+def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, rng=None,
+                      progress: bool = False, seed=None) -> list[dict]:
     """Star and L2-star discrepancy of every sampler at every n.
 
     Parameters
@@ -62,9 +77,9 @@ def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, seed=0,
     replicates : int
         Independent realizations per n for randomized samplers (deterministic
         ones are computed once).
-    seed : int or SeedSequence
+    rng : None, int, SeedSequence or Generator
         Root of the independent streams (one spawned per sampler, n and
-        replicate).
+        replicate); None: 0. ``seed=`` is its deprecated alias.
     progress : bool
         Show a tqdm progress bar.
 
@@ -81,7 +96,7 @@ def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, seed=0,
             raise ValueError(f"names must hold sampler names {tuple(SAMPLERS)}; got {name!r}")
     reps = check_count(replicates, "replicates")
     ns = sorted({check_count(int(n), "n_values") for n in n_values})
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    root = _root(rng, seed, "discrepancy_sweep")
     tasks = []
     for name, stream in zip(names, root.spawn(len(names))):
         r = 1 if SAMPLERS[name].deterministic else reps
@@ -123,8 +138,8 @@ def _grid_axes(count: int, size: float = 2.6):
     return fig, axes.flat
 
 
-def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
-                          progress: bool = True) -> dict[str, Path]:
+def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, rng=None,
+                          progress: bool = True, seed=None) -> dict[str, Path]:
     """Write the samplers report (figures and CSVs) into the folder ``out``.
 
     Parameters
@@ -137,8 +152,9 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
     n_max : int
         Largest n of the discrepancy sweep n = 16, 32, ..., n_max (powers of
         2; >= 16). Slopes are fitted on n >= 64.
-    seed : int
-        Root seed; the same seed gives the same numbers.
+    rng : None, int, SeedSequence or Generator
+        Root seed (None: 0); the same seed gives the same numbers. ``seed=``
+        is its deprecated alias.
     progress : bool
         Show progress bars.
 
@@ -167,7 +183,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
         raise ValueError(f"n_max must be >= 16; got {n_max}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    root = np.random.SeedSequence(check_count(seed, "seed", allow_zero=True))
+    root = _root(rng, seed, "write_samplers_report")
     points_seed, spectra_seed, sweep_seed = root.spawn(3)
     names = list(SAMPLERS)
     paths: dict[str, Path] = {}
@@ -218,7 +234,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
 
     # --- discrepancy versus n
     ns = [2 ** k for k in range(4, int(math.log2(n_max)) + 1)]
-    rows = discrepancy_sweep(ns, names=names, replicates=4, seed=sweep_seed, progress=progress)
+    rows = discrepancy_sweep(ns, names=names, replicates=4, rng=sweep_seed, progress=progress)
     slopes = []
     fig, axes = _grid_axes(len(names), size=3.3)
     for ax, name in zip(axes, names):

@@ -38,7 +38,7 @@ def measured(cache):
     ~5e-4 and the reference's (8 x 2048 spp) ~4e-4, so |t| ~ 20: detected."""
     return chart.measure_chart(methods=["raster", "path", "path_depth3"], res=16, replicates=10,
                                levels=(1, 4, 16, 64, 1024), reference_spp=2048, reference_chunks=8,
-                               workers=1, progress=False, seed=3, cache_dir=cache)
+                               workers=1, progress=False, rng=3, cache_dir=cache)
 
 
 def test_blur_and_mesh_bias_are_measured(measured, cache):
@@ -53,7 +53,7 @@ def test_blur_and_mesh_bias_are_measured(measured, cache):
         pytest.skip("photon and radiosity are not registered")
     result = chart.measure_chart(methods=methods, res=16, replicates=10, levels=(4, 16),
                                  reference_spp=2048, reference_chunks=8, workers=1, progress=False,
-                                 seed=3, cache_dir=cache)
+                                 rng=3, cache_dir=cache)
     assert result.reference.source.startswith("cache:")   # the `measured` fixture's reference
     for row in result.rows:
         assert row.unbiased == "no", row.evidence

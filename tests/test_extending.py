@@ -95,7 +95,7 @@ def test_the_toy_sampler_is_a_sampler_everywhere(toys):
     from mcvar.sampler_report import discrepancy_sweep
 
     rows = {r["sampler"]: r for r in discrepancy_sweep([1024], names=["toy_r2", "random"], replicates=8,
-                                                       seed=1)}
+                                                       rng=1)}
     gap = rows["random"]["star"] - rows["toy_r2"]["star"]
     assert gap > 5 * math.hypot(rows["random"]["star_se"], rows["toy_r2"]["star_se"]), rows
     with pytest.raises(ValueError, match="already registered"):

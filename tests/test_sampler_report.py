@@ -20,7 +20,7 @@ def _read(path):
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("samplers")
-    return out, write_samplers_report(out, n=64, n_max=256, seed=3, progress=False)
+    return out, write_samplers_report(out, n=64, n_max=256, rng=3, progress=False)
 
 
 def test_report_files(report):
@@ -55,9 +55,9 @@ def test_report_numbers(report):
 
 
 def test_same_seed_same_numbers(tmp_path):
-    a = discrepancy_sweep([16, 32], names=["random", "sobol"], replicates=2, seed=11)
-    b = discrepancy_sweep([16, 32], names=["random", "sobol"], replicates=2, seed=11)
-    c = discrepancy_sweep([16, 32], names=["random", "sobol"], replicates=2, seed=12)
+    a = discrepancy_sweep([16, 32], names=["random", "sobol"], replicates=2, rng=11)
+    b = discrepancy_sweep([16, 32], names=["random", "sobol"], replicates=2, rng=11)
+    c = discrepancy_sweep([16, 32], names=["random", "sobol"], replicates=2, rng=12)
     assert a == b and a != c
     assert all(r["replicates"] == 2 and r["star_se"] > 0 for r in a)
 

@@ -52,16 +52,16 @@ from types import MappingProxyType
 
 import numpy as np
 
-from .._validation import check_count
+from .._validation import check_count, seed_alias, settings_with
 from ..integrators.knobs import Knob, depth_knob, spp_knob
 from .targets import Target, _check_reference_settings, _scene, parse_method
-from .runs import SerialExecutor
+from .runs import SerialExecutor, root_seed
 from .reference import compute_reference
 from .sweeps import sweep
 from .analysis import image_bias_verdict
 
 __all__ = ["LECTURE_ROWS", "CHART_COLUMNS", "QUICK", "DEFAULT", "BLOCK", "Knob", "spp_knob", "ChartRow",
-           "ChartResult", "register_knob", "chart_methods", "chart_knob", "chart_theory", "chart_lecture_row",
+           "ChartResult", "ChartSettings", "register_knob", "chart_methods", "chart_knob", "chart_theory", "chart_lecture_row",
            "lecture_chart_claim", "split_row", "row_name", "chart_target", "emitter_pixels", "measure_chart"]
 
 #: The lecture's chart: row -> (consistent?, unbiased?).
@@ -394,15 +394,32 @@ def _canonical_rows(methods) -> list:
     return out
 
 
-def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
-                  replicates: int | None = None, levels=None, seed: int = 0, alpha: float = 1e-3,
-                  workers: int | None = None, cache_dir=None, progress: bool = True,
-                  reference_spp: int | None = None, reference_chunks: int | None = None,
-                  scene: str = "cornell") -> ChartResult:
+@dataclass(frozen=True)
+class ChartSettings:
+    """What :func:`measure_chart` measures (its keywords; see there)."""
+
+    quick: bool = False
+    methods: tuple | None = None
+    res: int | None = None
+    replicates: int | None = None
+    levels: tuple | None = None
+    rng: int | None = None
+    alpha: float = 1e-3
+    workers: int | None = None
+    progress: bool = True
+    reference_spp: int | None = None
+    reference_chunks: int | None = None
+    scene: str = "cornell"
+
+
+def measure_chart(settings: ChartSettings | None = None, *, cache_dir=None, **options) -> ChartResult:
     """Measure the lecture's chart for every registered method.
 
     Parameters
     ----------
+    settings : ChartSettings, optional
+        The keywords below are its fields and replace them (any other keyword
+        is a ``TypeError``).
     quick : bool
         :data:`QUICK` settings and each knob's quick levels (``mcvar chart
         --quick``), else :data:`DEFAULT` and the default levels.
@@ -414,8 +431,9 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
         Override the mode's settings.
     levels : sequence of int, optional
         The same levels for every method instead of each knob's.
-    seed, alpha, workers, cache_dir, progress
-        As in :func:`~mcvar.experiments.sweeps.sweep`. One executor serves
+    rng, alpha, workers, cache_dir, progress
+        As in :func:`~mcvar.experiments.sweeps.sweep` (``seed=`` is the
+        deprecated alias of ``rng``). One executor serves
         the reference and every method's sweep; ``cache_dir`` caches both, so
         a second call only computes what is missing.
     scene : str
@@ -445,6 +463,12 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
        Simulation", PhD thesis, Stanford University, 1997, sec. 1.4.4, 2.4.3.
     """
+    opts = settings_with(ChartSettings, settings, seed_alias(options, "measure_chart"), "measure_chart")
+    quick, methods, levels, alpha, workers, progress = (opts.quick, opts.methods, opts.levels, opts.alpha,
+                                                         opts.workers, opts.progress)
+    seed, scene = root_seed(opts.rng, where="measure_chart"), opts.scene
+    res, replicates, reference_spp, reference_chunks = (opts.res, opts.replicates, opts.reference_spp,
+                                                        opts.reference_chunks)
     settings = dict(QUICK if quick else DEFAULT)
     for name, value in (("res", res), ("replicates", replicates), ("reference_spp", reference_spp),
                         ("reference_chunks", reference_chunks)):
@@ -483,7 +507,7 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     n_workers = workers or os.cpu_count() or 1
     executor = SerialExecutor() if n_workers == 1 else ProcessPoolExecutor(max_workers=n_workers)
     try:
-        reference = compute_reference(targets[None], seed=seed, executor=executor, cache_dir=cache_dir,
+        reference = compute_reference(targets[None], rng=seed, executor=executor, cache_dir=cache_dir,
                                       progress=progress)
         mask = ~emitter_pixels(loaded, settings["res"])
         sweeps, rows = {}, []
@@ -492,7 +516,7 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
             mlevels = levels or (knob.quick if quick else knob.default)
             t0 = time.perf_counter()
             result = sweep(targets[m], methods=[m], samplers=["random"], spp=mlevels,
-                           replicates=settings["replicates"], seed=seed, reference=reference,
+                           replicates=settings["replicates"], rng=seed, reference=reference,
                            executor=executor, cache_dir=cache_dir, alpha=alpha, progress=progress)
             sweeps[m] = result
             verdict = result.verdicts[m]
