@@ -24,7 +24,7 @@ raises on a failing sampler (bad *arguments* raise ``ValueError`` /
 samplers that the checks must reject, and :func:`measure_power` measures how
 many samples each check needs to reject one.
 """
-from ._chi2 import Chi2Result, bsdf_chi2_test, chi2_test, sidak_significance
+from ._chi2 import Chi2Result, Chi2Settings, bsdf_chi2_test, chi2_test, sidak_significance
 from ._domains import DOMAINS, Domain
 from .checks import (BSDFLike, CheckResult, PowerResult, check_extremes, check_inverse, check_pdf_normalized,
                      check_unbiased, check_weight_consistency, measure_power)
@@ -39,6 +39,7 @@ __all__ = [
     "BSDFLike",
     "sidak_significance",
     "chi2_test",
+    "Chi2Settings",
     "bsdf_chi2_test",
     "check_pdf_normalized",
     "check_weight_consistency",
