@@ -299,6 +299,120 @@ def _verdict_table(result: SweepResult) -> str:
                    "lecture: unbiased?", "lecture: consistent?"), rows, cls="verdicts")
 
 
+def _configurations(result: SweepResult, xlabel: str) -> tuple[list, list]:
+    """The table of every configuration, best figure of merit first: (header, rows)."""
+    quality = any(np.isfinite(m.ssim) for m in result.metrics)
+    ranked = sorted(result.metrics, key=lambda m: (m.figure_of_merit, m.method, m.sampler, m.spp))
+    efficient = {(m.method, m.sampler, m.spp) for m, e in _frontier(result) if e}
+    rows = []
+    for i, m in enumerate(ranked):
+        row = [i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
+               _fmt((m.method, m.sampler, m.spp) in efficient), _fmt(m.mse), _fmt(m.seconds),
+               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
+               "exact (zero variance)" if m.deterministic else f"{m.bias_z:.2f}",
+               _fmt(m.bias_pvalue), _fmt(m.bias_detected)]
+        if quality:
+            row += [_fmt(m.psnr, 4), _fmt(m.ssim, 3)]
+        rows.append(row)
+    header = ["rank", "method", "sampler", xlabel, "MSE x time", "verdict", "efficient", "MSE", "seconds",
+              "efficiency", "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"]
+    if quality:
+        header += ["PSNR (dB)", "SSIM"]
+    return header, rows
+
+
+def _facts(result: SweepResult, xlabel: str, elapsed, command) -> list:
+    """The settings table: (setting, value) pairs."""
+    ref = result.reference
+    facts = [
+        ("target", result.target),
+        ("methods", ", ".join(result.methods)), ("samplers", ", ".join(result.samplers)),
+        (f"{xlabel} levels", ", ".join(map(str, result.spp))),
+        ("replicates per configuration", result.replicates), ("seed", result.seed),
+        ("reference", ref.source),
+        ("runs computed / loaded from cache", f"{result.computed} / {result.cached}"),
+        ("cores on this machine", os.cpu_count()),
+    ]
+    if ref.value.ndim == 3:
+        facts.insert(1, ("resolution", f"{ref.value.shape[1]} x {ref.value.shape[0]}"))
+    if elapsed is not None:
+        facts.append(("wall time of the sweep", f"{elapsed:.1f} s"))
+    if command:
+        facts.append(("command", command))
+    return facts
+
+
+def _summary(result: SweepResult, paths: dict, xlabel: str, elapsed) -> list:
+    """What a reader wants first: the verdicts, the speed-for-accuracy frontier, the images."""
+    ref = result.reference
+    is_image = ref.value.ndim == 3
+    front = sorted((m for m, e in _frontier(result) if e), key=lambda m: m.seconds)
+    front_text = ", ".join(f"{m.method} / {m.sampler} at {m.spp} {xlabel}" for m in front[:8])
+    shape = (f"{ref.value.shape[1]} x {ref.value.shape[0]} pixels, " if is_image else "")
+    body = [
+        f"<h1>Convergence report: {html.escape(result.target)}</h1>",
+        f"<p class='lead'>{shape}{len(result.methods)} methods x {len(result.samplers)} samplers x "
+        f"{len(result.spp)} {xlabel} levels x {result.replicates} replicates"
+        + (f", {elapsed:.0f} s" if elapsed is not None else "") + ".</p>",
+        "<h2>Verdicts</h2>",
+        "<p>The lecture asks of each method: is it unbiased, is it consistent? Measured here: "
+        "<b>unbiased</b> when no configuration's bias is distinguishable from zero (Welch t test, "
+        f"Sidak-corrected to family-wise alpha = {result.alpha:g}); <b>consistent</b> when, for every "
+        "sampler, the MSE falls with " + xlabel + " and the bias vanishes. The evidence is below.</p>",
+        _verdict_table(result),
+        "<h2>Speed for accuracy</h2>",
+        "<p>MSE against wall time per estimate, one curve per method and sampler (points: the "
+        f"{xlabel} levels). Starred: the efficient configurations, those no other configuration beats "
+        "in both time and MSE" + (f": {html.escape(front_text)}" + (f" and {len(front) - 8} more" if len(front) > 8
+                                                                   else "") if front else "") + ".</p>",
+        _img(paths["mse_time"], "MSE against wall time per estimate; stars mark the efficient (Pareto) "
+                                "configurations."),
+    ]
+    if is_image:
+        body += ["<h2>Images</h2>", _image_tiles(result)]
+    return body
+
+
+def _detail_sections(result: SweepResult, paths: dict, xlabel: str, fit_rows: list, facts: list) -> list:
+    """The collapsible sections: evidence, fitted rates, every configuration, figures, settings."""
+    is_image = "images" in paths
+    fom_header, fom_rows = _configurations(result, xlabel)
+    quality = len(fom_header) > 16
+    evidence = []
+    for v in result.verdicts.values():
+        items = "".join(f"<li>{html.escape(part)}</li>" for part in _clauses(v.evidence))
+        evidence.append(f"<h3>{html.escape(v.method)}: {html.escape(v.label)}</h3><ul class='evidence'>"
+                        f"{items}</ul>")
+    return [
+        "<h2>Details</h2>",
+        _details("Evidence behind each verdict", *evidence),
+        _details("Fitted rates",
+                 "<p>Least-squares slopes of log(quantity) against log(" + xlabel + ") (MSE also against "
+                 "log(time)), ± their standard errors. Plain Monte Carlo variance falls as 1/N (slope -1); "
+                 "stratified and QMC samplers can do better on smooth integrands.</p>",
+                 _table(("method", "sampler", f"variance vs {xlabel}", f"MSE vs {xlabel}", "MSE vs time",
+                         f"bias² vs {xlabel}", "consistent"), fit_rows)),
+        _details(f"Every configuration: figure of merit MSE x time, best first ({len(fom_rows)} rows)",
+                 "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a "
+                 "method would reach in one second, assuming MSE ~ 1/time, true of unbiased, consistent "
+                 "methods only: a biased method's MSE stops at its squared bias, so read its rank with "
+                 "its verdict. For comparison, a mature LLVM renderer reaches about 5e-6 on the Cornell "
+                 "box at 64 x 64 and 256 spp with a multi-jittered sampler (about 1.4e-4 with independent "
+                 "sampling)." + (" PSNR and SSIM: of the displayed (sRGB) image against the reference, "
+                                 "mean over replicates." if quality else "") + "</p>",
+                 f'<div class="scroll">{_table(fom_header, fom_rows, cls="configs")}</div>'),
+        _details("More figures",
+                 _img(paths["variance"], f"Variance against {xlabel}, log-log, fitted slopes in the "
+                                         "legends (dotted: slope -1)."),
+                 _img(paths["bias"], f"Bias of the mean value with its {_LEVEL:.1%} interval; an "
+                                     "interval away from 0 is a detected bias."),
+                 _img(paths["efficiency"], "Efficiency 1 / (MSE x time) per configuration."),
+                 *([_img(paths["images"], "Reference, one estimate per method at the largest spp, and "
+                                          "the per-pixel variance across replicates.")] if is_image else [])),
+        _details("Settings", _table(("setting", "value"), [(k, v) for k, v in facts])),
+    ]
+
+
 def write_report(result: SweepResult, out, *, elapsed: float | None = None,
                  command: str | None = None, progress_note: str = "", sections=()) -> dict[str, Path]:
     """Write the figures, CSVs and ``report.html`` of a finished sweep.
@@ -348,100 +462,10 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     if is_image:
         paths["images"] = _plot_images(result, out / "images.png")
 
-    quality = any(np.isfinite(m.ssim) for m in result.metrics)
     fit_rows = [(f.method, f.sampler, _slope(f.variance), _slope(f.mse), _slope(f.mse_time),
                  _slope(f.bias2), _fmt(f.consistent)) for f in result.fits.values()]
-    ranked = sorted(result.metrics, key=lambda m: (m.figure_of_merit, m.method, m.sampler, m.spp))
-    efficient = {(m.method, m.sampler, m.spp) for m, e in _frontier(result) if e}
-    fom_rows = []
-    for i, m in enumerate(ranked):
-        row = [i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
-               _fmt((m.method, m.sampler, m.spp) in efficient), _fmt(m.mse), _fmt(m.seconds),
-               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
-               "exact (zero variance)" if m.deterministic else f"{m.bias_z:.2f}",
-               _fmt(m.bias_pvalue), _fmt(m.bias_detected)]
-        if quality:
-            row += [_fmt(m.psnr, 4), _fmt(m.ssim, 3)]
-        fom_rows.append(row)
-    fom_header = ["rank", "method", "sampler", xlabel, "MSE x time", "verdict", "efficient", "MSE", "seconds",
-                  "efficiency", "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"]
-    if quality:
-        fom_header += ["PSNR (dB)", "SSIM"]
-    ref = result.reference
-    facts = [
-        ("target", result.target),
-        ("methods", ", ".join(result.methods)), ("samplers", ", ".join(result.samplers)),
-        (f"{xlabel} levels", ", ".join(map(str, result.spp))),
-        ("replicates per configuration", result.replicates), ("seed", result.seed),
-        ("reference", ref.source),
-        ("runs computed / loaded from cache", f"{result.computed} / {result.cached}"),
-        ("cores on this machine", os.cpu_count()),
-    ]
-    if is_image:
-        facts.insert(1, ("resolution", f"{ref.value.shape[1]} x {ref.value.shape[0]}"))
-    if elapsed is not None:
-        facts.append(("wall time of the sweep", f"{elapsed:.1f} s"))
-    if command:
-        facts.append(("command", command))
-
-    front = sorted((m for m, e in _frontier(result) if e), key=lambda m: m.seconds)
-    front_text = ", ".join(f"{m.method} / {m.sampler} at {m.spp} {xlabel}" for m in front[:8])
-    evidence = []
-    for v in result.verdicts.values():
-        items = "".join(f"<li>{html.escape(part)}</li>" for part in _clauses(v.evidence))
-        evidence.append(f"<h3>{html.escape(v.method)}: {html.escape(v.label)}</h3><ul class='evidence'>"
-                        f"{items}</ul>")
-    shape = (f"{ref.value.shape[1]} x {ref.value.shape[0]} pixels, " if is_image else "")
-    body = [
-        f"<h1>Convergence report: {html.escape(result.target)}</h1>",
-        f"<p class='lead'>{shape}{len(result.methods)} methods x {len(result.samplers)} samplers x "
-        f"{len(result.spp)} {xlabel} levels x {result.replicates} replicates"
-        + (f", {elapsed:.0f} s" if elapsed is not None else "") + ".</p>",
-        "<h2>Verdicts</h2>",
-        "<p>The lecture asks of each method: is it unbiased, is it consistent? Measured here: "
-        "<b>unbiased</b> when no configuration's bias is distinguishable from zero (Welch t test, "
-        f"Sidak-corrected to family-wise alpha = {result.alpha:g}); <b>consistent</b> when, for every "
-        "sampler, the MSE falls with " + xlabel + " and the bias vanishes. The evidence is below.</p>",
-        _verdict_table(result),
-        "<h2>Speed for accuracy</h2>",
-        "<p>MSE against wall time per estimate, one curve per method and sampler (points: the "
-        f"{xlabel} levels). Starred: the efficient configurations, those no other configuration beats "
-        "in both time and MSE" + (f": {html.escape(front_text)}" + (f" and {len(front) - 8} more" if len(front) > 8
-                                                                   else "") if front else "") + ".</p>",
-        _img(paths["mse_time"], "MSE against wall time per estimate; stars mark the efficient (Pareto) "
-                                "configurations."),
-    ]
-    if is_image:
-        body += ["<h2>Images</h2>", _image_tiles(result)]
-    body += list(sections)
-    body += [
-        "<h2>Details</h2>",
-        _details("Evidence behind each verdict", *evidence),
-        _details("Fitted rates",
-                 "<p>Least-squares slopes of log(quantity) against log(" + xlabel + ") (MSE also against "
-                 "log(time)), ± their standard errors. Plain Monte Carlo variance falls as 1/N (slope -1); "
-                 "stratified and QMC samplers can do better on smooth integrands.</p>",
-                 _table(("method", "sampler", f"variance vs {xlabel}", f"MSE vs {xlabel}", "MSE vs time",
-                         f"bias² vs {xlabel}", "consistent"), fit_rows)),
-        _details(f"Every configuration: figure of merit MSE x time, best first ({len(fom_rows)} rows)",
-                 "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a "
-                 "method would reach in one second, assuming MSE ~ 1/time, true of unbiased, consistent "
-                 "methods only: a biased method's MSE stops at its squared bias, so read its rank with "
-                 "its verdict. For comparison, a mature LLVM renderer reaches about 5e-6 on the Cornell "
-                 "box at 64 x 64 and 256 spp with a multi-jittered sampler (about 1.4e-4 with independent "
-                 "sampling)." + (" PSNR and SSIM: of the displayed (sRGB) image against the reference, "
-                                 "mean over replicates." if quality else "") + "</p>",
-                 f'<div class="scroll">{_table(fom_header, fom_rows, cls="configs")}</div>'),
-        _details("More figures",
-                 _img(paths["variance"], f"Variance against {xlabel}, log-log, fitted slopes in the "
-                                         "legends (dotted: slope -1)."),
-                 _img(paths["bias"], f"Bias of the mean value with its {_LEVEL:.1%} interval; an "
-                                     "interval away from 0 is a detected bias."),
-                 _img(paths["efficiency"], "Efficiency 1 / (MSE x time) per configuration."),
-                 *([_img(paths["images"], "Reference, one estimate per method at the largest spp, and "
-                                          "the per-pixel variance across replicates.")] if is_image else [])),
-        _details("Settings", _table(("setting", "value"), [(k, v) for k, v in facts])),
-    ]
+    body = _summary(result, paths, xlabel, elapsed) + list(sections)
+    body += _detail_sections(result, paths, xlabel, fit_rows, _facts(result, xlabel, elapsed, command))
     if progress_note:
         body.append(f"<p>{html.escape(progress_note)}</p>")
     body.append("<p class='note'>Every number is in <code>results.csv</code> and <code>fits.csv</code> "
