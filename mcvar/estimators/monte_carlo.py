@@ -14,7 +14,8 @@ from typing import Literal
 import numpy as np
 from scipy import stats
 
-from .._validation import as_array, as_rng, check_choice, check_count, check_positive, check_probability
+from .._validation import (as_array, as_rng, check_choice, check_count, check_positive, check_probability,
+                           settings_with)
 from ..samplers import SAMPLERS, digital_shift, get_sampler
 
 _METHODS = ("iid", "replicates")
@@ -394,8 +395,31 @@ def _target(est: Estimate, tol) -> np.ndarray:
     return np.maximum(a, r * np.abs(np.asarray(est.mean)))
 
 
-def estimate_mean(g, *, n, sampler="random", rng=None, replicates=None, atol=None, rtol=None,
-                  level: float = 0.99, max_n: int = 1 << 28, batch: int = _BATCH) -> Estimate:
+@dataclass(frozen=True)
+class EstimateSettings:
+    """How an estimator draws and stops: the keywords of :func:`estimate_mean` (see there),
+    shared by :func:`estimate` and the MIS estimators. ``n`` has no default."""
+
+    n: int | None = None
+    sampler: object = "random"
+    rng: object = None
+    replicates: int | None = None
+    atol: float | None = None
+    rtol: float | None = None
+    level: float = 0.99
+    max_n: int = 1 << 28
+    batch: int = _BATCH
+
+
+def estimate_settings(settings, options: dict, where: str) -> EstimateSettings:
+    """``settings`` with the keyword ``options`` (its fields) applied; ``n`` must be given."""
+    s = settings_with(EstimateSettings, settings, options, where)
+    if s.n is None:
+        raise TypeError(f"{where}() needs n, the number of samples (keyword n= or EstimateSettings.n)")
+    return s
+
+
+def estimate_mean(g, settings: EstimateSettings | None = None, **options) -> Estimate:
     """Estimate ``E[g(U)]``, ``U`` uniform on the unit square, from any 2D sampler.
 
     The engine under :func:`estimate`: ``g`` maps unit-square points
@@ -407,6 +431,10 @@ def estimate_mean(g, *, n, sampler="random", rng=None, replicates=None, atol=Non
     ----------
     g : callable
         ``g(u) -> contributions``; must return finite values.
+    settings : EstimateSettings, optional
+        The options below as one record; the keywords ``n``, ``sampler``,
+        ``rng``, ``replicates``, ``atol``, ``rtol``, ``level``, ``max_n`` and
+        ``batch`` replace its fields (any other keyword is a ``TypeError``).
     n : int
         Number of samples (``>= 1``). With ``replicates = R > 1`` each
         replicate gets ``n // R`` points (``n >= 2 R``) and the Estimate's
@@ -475,14 +503,16 @@ def estimate_mean(g, *, n, sampler="random", rng=None, replicates=None, atol=Non
     """
     if not callable(g):
         raise TypeError(f"g must be callable; got {type(g).__name__}")
-    n = check_count(n, "n")
-    max_n = check_count(max_n, "max_n")
-    batch = check_count(batch, "batch")
-    level = check_probability(level, "level")
+    opts = estimate_settings(settings, options, "estimate_mean")
+    rng, atol, rtol = opts.rng, opts.atol, opts.rtol
+    n = check_count(opts.n, "n")
+    max_n = check_count(opts.max_n, "max_n")
+    batch = check_count(opts.batch, "batch")
+    level = check_probability(opts.level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level must lie in (0, 1); got {level}")
-    fn, name = _resolve_sampler(sampler)
-    r = _resolve_replicates(replicates, name)
+    fn, name = _resolve_sampler(opts.sampler)
+    r = _resolve_replicates(opts.replicates, name)
     tol = _tolerance(atol, rtol)
     if r == 1:
         gen = as_rng(rng)
@@ -562,9 +592,8 @@ def _replicates_to_tolerance(g, rep, m, batch, tol, level, max_n) -> Estimate:
         est = Estimate.from_replicates(np.stack([np.asarray(_mean_of(g, u, batch).mean) for u in sets]), m)
 
 
-def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=None, rtol=None,
-             replicates=None, level: float = 0.99, max_n: int = 1 << 28,
-             zero_pdf: Literal["raise", "drop"] = "raise", batch: int = _BATCH) -> Estimate:
+def estimate(f, *, sample=None, pdf=None, zero_pdf: Literal["raise", "drop"] = "raise",
+             settings: EstimateSettings | None = None, **options) -> Estimate:
     """The Monte Carlo estimator ``(1/N) sum_j f(X_j) / p(X_j)``, with its error.
 
     ``X_j = sample(U_j)`` for unit-square points ``U_j`` from ``sampler``: a
@@ -584,8 +613,8 @@ def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=No
     pdf : callable, optional
         The warp's density ``pdf(x) -> (n,)`` in the measure of the integral
         (solid angle for directions). Default: 1 (uniform on the square).
-    n, sampler, rng, replicates, atol, rtol, level, max_n, batch
-        As in :func:`estimate_mean`.
+    settings, n, sampler, rng, replicates, atol, rtol, level, max_n, batch
+        As in :func:`estimate_mean` (:class:`EstimateSettings` or its fields).
     zero_pdf : {'raise', 'drop'}, optional
         What a sampled point with ``pdf = 0`` and ``f != 0`` means; see Notes.
 
@@ -623,6 +652,5 @@ def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=No
     >>> abs(e.mean - 2) < 5 * e.stderr, round(e.variance, 1)
     (True, 4.0)
     """
-    return estimate_mean(contribution(f, sample=sample, pdf=pdf, zero_pdf=zero_pdf), n=n, sampler=sampler, rng=rng,
-                         replicates=replicates, atol=atol, rtol=rtol, level=level, max_n=max_n,
-                         batch=batch)
+    settings = estimate_settings(settings, options, "estimate")
+    return estimate_mean(contribution(f, sample=sample, pdf=pdf, zero_pdf=zero_pdf), settings)
