@@ -63,7 +63,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .._validation import as_array, as_rng, check_choice, check_count, check_positive
+from .._validation import as_array, as_rng, check_choice, check_count, check_positive, settings_with
 from ..bsdf import Lambertian
 from ..geometry import Frame
 from ..scene import Scene
@@ -74,7 +74,7 @@ from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import camera_rays
 
-__all__ = ["Patches", "FormFactors", "Radiosity", "check_diffuse", "mesh_patches",
+__all__ = ["Patches", "FormFactors", "Radiosity", "RadiositySettings", "check_diffuse", "mesh_patches",
            "form_factors", "solve_radiosity", "radiosity", "SOLVERS", "run_radiosity_batch"]
 
 #: Linear solvers of :func:`solve_radiosity`.
@@ -521,15 +521,28 @@ class Radiosity:
         return out
 
 
-def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 256,
-              emitter_rays: int = 1 << 20, solver: str = "jacobi",
-              tol: float = 1e-6, rng=None, tracer: Tracer | None = None, progress=None) -> Radiosity:
+@dataclass(frozen=True)
+class RadiositySettings:
+    """The mesh, form-factor and solver settings of :func:`radiosity` (its keywords)."""
+
+    patch_size: float = 40.0
+    rays_per_side: int = 256
+    emitter_rays: int = 1 << 20
+    solver: str = "jacobi"
+    tol: float = 1e-6
+
+
+def radiosity(scene: Scene, settings: RadiositySettings | None = None, *, rng=None, tracer: Tracer | None = None,
+              progress=None, **options) -> Radiosity:
     """Mesh, form factors and solve: the whole finite-element radiosity of ``scene``.
 
     Parameters
     ----------
     scene : Scene
         Lambertian triangles only (:func:`check_diffuse`).
+    settings : RadiositySettings, optional
+        ``patch_size``, ``rays_per_side``, ``emitter_rays``, ``solver`` and
+        ``tol`` as one record; those keywords replace its fields.
     patch_size : float
         Longest sub-edge of a patch (scene units; default 40: 1 950 patches,
         3 900 sides in the Cornell box).
@@ -546,6 +559,9 @@ def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 25
     -------
     Radiosity
     """
+    opts = settings_with(RadiositySettings, settings, options, "radiosity")
+    patch_size, rays_per_side, emitter_rays, solver, tol = (opts.patch_size, opts.rays_per_side,
+                                                            opts.emitter_rays, opts.solver, opts.tol)
     check_diffuse(scene)
     start = time.perf_counter()
     patches = mesh_patches(scene, patch_size)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import as_rng, check_count, check_positive
+from .._validation import as_rng, check_count, check_positive, settings_with
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
@@ -32,7 +32,7 @@ from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import CAMERA_DIMS, SampleStream
 
-__all__ = ["SPPMResult", "sppm", "default_radius", "run_sppm_batch"]
+__all__ = ["SPPMResult", "SPPMSettings", "sppm", "default_radius", "run_sppm_batch"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,14 +65,29 @@ def default_radius(scene: Scene) -> float:
     return 0.01 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
 
 
-def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: int = 1 << 15,
-         radius: float | None = None, alpha: float = 0.7, rng=None, max_depth: int | None = None,
-         tracer: Tracer | None = None, callback=None, pixel_offsets=None) -> SPPMResult:
+@dataclass(frozen=True)
+class SPPMSettings:
+    """What :func:`sppm` computes (its keywords; see there)."""
+
+    res: object = 32
+    iterations: int = 16
+    photons_per_iteration: int = 1 << 15
+    radius: float | None = None
+    alpha: float = 0.7
+    max_depth: int | None = None
+
+
+def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer: Tracer | None = None,
+         callback=None, pixel_offsets=None, **options) -> SPPMResult:
     """Stochastic progressive photon mapping (Hachisuka and Jensen 2009).
 
     Parameters
     ----------
     scene : Scene
+    settings : SPPMSettings, optional
+        ``res``, ``iterations``, ``photons_per_iteration``, ``radius``,
+        ``alpha`` and ``max_depth`` as one record; those keywords replace its
+        fields.
     res : int or (int, int)
         Square side or ``(width, height)``.
     iterations : int
@@ -109,9 +124,11 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
     depth are gathered (no separate direct lighting), so a pixel's direct
     light is blurred by its radius like its indirect light.
     """
-    iterations = check_count(iterations, "iterations")
-    photons_per_iteration = check_count(photons_per_iteration, "photons_per_iteration")
-    alpha = float(alpha)
+    opts = settings_with(SPPMSettings, settings, options, "sppm")
+    res, radius, max_depth = opts.res, opts.radius, opts.max_depth
+    iterations = check_count(opts.iterations, "iterations")
+    photons_per_iteration = check_count(opts.photons_per_iteration, "photons_per_iteration")
+    alpha = float(opts.alpha)
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
     r0 = default_radius(scene) if radius is None else check_positive(radius, "radius")
