@@ -266,7 +266,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         def visit(x, fx, px, y, fy, py, a, acc):
             _splat(film, n_pix, np.where(acc[:, None], py, px), np.ones(acc.shape[0]))
 
-    _, _, _, n_acc, n_done = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng, visit=visit,
+    _, _, _, n_acc, n_done = _walk(evaluate, (x, fx, px), n_steps, (sigma, p_large), rng, visit=visit,
                                    thin=n_steps)
     done = chains * n_done / n_pix
     # image = b / spp * film  ->  sum = b * film, so that sum / spp is the image
