@@ -311,7 +311,59 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, settings: Chi2Set
         raise TypeError(f"sample must be callable; got {type(sample).__name__}")
     if not callable(pdf):
         raise TypeError(f"pdf must be callable; got {type(pdf).__name__}")
-    opts = settings_with(Chi2Settings, settings, options, "chi2_test")
+    setup, info = _setup(domain, settings_with(Chi2Settings, settings, options, "chi2_test"))
+    hist = _histogram(sample, setup)
+    if isinstance(hist, str):
+        return _fail(hist, info)
+    observed, outside, failed, reports_valid = hist
+    info.update(observed=observed, outside_bounds=outside, failed=failed)
+    checked = _check_integral(pdf, setup, hist, info)
+    if isinstance(checked, Chi2Result):
+        return checked
+    expected, _, integral, valid_p, _ = checked
+    stat = _statistic(observed, expected, integral, outside + failed,
+                      not setup.is_full or reports_valid, setup.min_expected, setup.bins)
+    if isinstance(stat, str):
+        return _fail(stat, {**info, "valid_pvalue": valid_p})
+    return _verdict(stat, info, checked, hist, setup.n)
+
+
+def _verdict(stat_dof: tuple, info: dict, checked: tuple, hist: tuple, n: int) -> Chi2Result:
+    """The test's result from Pearson's statistic and its degrees of freedom."""
+    stat, dof = stat_dof
+    _, ierr, integral, valid_p, binomial = checked
+    failed, reports_valid = hist[2], hist[3]
+    pval = float(stats.chi2.sf(stat, dof))
+    sig = info["significance"]
+    passed = pval > sig
+    msg = (f"chi-square {stat:.4g} on {dof} dof, p = {pval:.3g} {'>' if passed else '<='} significance "
+           f"{sig:.3g}: {'accepted' if passed else 'rejected'}")
+    if reports_valid:
+        msg += (f"; {failed} of {n} samples failed, valid fraction {(n - failed) / n:.6g} vs "
+                f"pdf integral {integral:.6g}" + (f" (binomial p = {valid_p:.3g})" if binomial else ""))
+    return Chi2Result(statistic=stat, dof=dof, pvalue=pval, passed=passed, message=msg,
+                      integration_error=ierr, valid_pvalue=valid_p, **info)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """A chi-square test's checked settings and histogram geometry."""
+
+    domain: str
+    n: int
+    batch_size: int
+    gen: np.random.Generator
+    min_expected: float
+    atol: float
+    full_bounds: tuple
+    is_full: bool
+    bins: tuple
+    dim: int
+    edges: tuple
+
+
+def _setup(domain, opts: Chi2Settings):
+    """Every setting checked before any work: ``(_Setup, the result's known fields)``."""
     domain = check_choice(domain, "domain", DOMAINS)
     n = check_count(opts.n, "n")
     batch_size = check_count(opts.batch_size, "batch_size")
@@ -328,42 +380,18 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, settings: Chi2Set
     empty = np.zeros(bins)
     info = dict(significance=sig, observed=empty, expected=empty, edges=edges, coordinates=coords,
                 domain=domain, n=n)
-
-    hist = _histogram(sample, domain, dim, n, batch_size, as_rng(opts.rng), full_bounds, bins)
-    if isinstance(hist, str):
-        return _fail(hist, info)
-    observed, outside, failed, reports_valid = hist
-    info.update(observed=observed, outside_bounds=outside, failed=failed)
-    checked = _check_integral(pdf, domain, edges, n, failed, reports_valid, is_full, atol, sig, info)
-    if isinstance(checked, Chi2Result):
-        return checked
-    expected, ierr, integral, valid_p, binomial = checked
-    sig = info["significance"]
-    stat = _statistic(observed, expected, integral, outside + failed, not is_full or reports_valid,
-                      min_expected, bins)
-    if isinstance(stat, str):
-        return _fail(stat, {**info, "valid_pvalue": valid_p})
-    stat, dof = stat
-    pval = float(stats.chi2.sf(stat, dof))
-    passed = pval > sig
-    msg = (f"chi-square {stat:.4g} on {dof} dof, p = {pval:.3g} "
-           f"{'>' if passed else '<='} significance {sig:.3g}: "
-           f"{'accepted' if passed else 'rejected'}")
-    if reports_valid:
-        n_valid = n - failed
-        msg += (f"; {failed} of {n} samples failed, valid fraction {n_valid / n:.6g} vs pdf "
-                f"integral {integral:.6g}" + (f" (binomial p = {valid_p:.3g})" if binomial else ""))
-    return Chi2Result(statistic=stat, dof=dof, pvalue=pval, passed=passed, message=msg,
-                      integration_error=ierr, valid_pvalue=valid_p, **info)
+    return _Setup(domain, n, batch_size, as_rng(opts.rng), min_expected, atol, full_bounds, is_full, bins, dim,
+                  edges), info
 
 
-def _histogram(sample, domain, dim, n, batch_size, gen, full_bounds, bins):
+def _histogram(sample, setup: _Setup):
     """Histogram of ``n`` samples over the parameter rectangle: ``(observed, outside, failed,
     reports_valid)``, or a message saying why the samples fail the test outright."""
+    domain, dim, n, batch_size, gen, bins = setup.domain, setup.dim, setup.n, setup.batch_size, setup.gen, setup.bins
     observed = np.zeros(bins[0] * bins[1], dtype=np.int64)
     outside = failed = 0
     reports_valid = False
-    (lo0, hi0), (lo1, hi1) = full_bounds
+    (lo0, hi0), (lo1, hi1) = setup.full_bounds
     for start in range(0, n, batch_size):
         m = min(batch_size, n - start)
         x, valid = _sample_points(sample, gen.random((m, 2)), dim)
@@ -388,10 +416,13 @@ def _histogram(sample, domain, dim, n, batch_size, gen, full_bounds, bins):
     return observed.reshape(bins).astype(np.float64), outside, failed, reports_valid
 
 
-def _check_integral(pdf, domain, edges, n, failed, reports_valid, is_full, atol, sig, info):
+def _check_integral(pdf, setup: _Setup, hist: tuple, info: dict):
     """Expected counts and the normalisation checks: ``(expected, integration error, integral,
     valid-fraction p-value, binomial test run?)`` or a failed :class:`Chi2Result`. Updates
     ``info`` (expected counts, integral, the significance after the binomial test's share)."""
+    domain, edges, n, is_full, atol, sig = (setup.domain, setup.edges, setup.n, setup.is_full, setup.atol,
+                                            info["significance"])
+    _, _, failed, reports_valid = hist
     n_valid = n - failed
     int_tol = 0.1 * atol if np.isfinite(atol) else np.inf
     binomial = reports_valid and is_full and np.isfinite(atol)
