@@ -159,8 +159,8 @@ PURE_TABLES = {"mcvar/testing/_domains.py:_gauss_legendre", "mcvar/experiments/r
 
 def test_no_module_level_caches():
     """No module-level dict named like a cache and no ``lru_cache``/``cache`` decorator: a
-    cache belongs to an object with a lifetime (a target owns its scene, a VisibleLights
-    its images, a render its tracer)."""
+    cache belongs to an object with a lifetime (a target owns its scene, a scene the
+    images of its visible lights, a render its tracer)."""
     found = []
     for path in sorted(PKG.rglob("*.py")):
         rel = str(path.relative_to(PKG.parent))
@@ -181,13 +181,12 @@ def test_no_module_level_caches():
     assert not stray, f"module-level caches (give them an owner with a lifetime): {stray}"
 
 
-def test_visible_lights_images_are_cached_by_their_object():
+def test_visible_lights_images_are_cached_by_their_scene():
     from mcvar.integrators.emitters import VisibleLights
     from mcvar.scene import load_scene
 
     scene = load_scene("cornell")
-    a, b = VisibleLights(scene), VisibleLights(scene)
-    image = a.image((8, 8))
-    assert a.image((8, 8)) is image                      # the object's own cache
-    other = b.image((8, 8))
-    assert other is not image and (other == image).all()   # a second object computes its own
+    image = VisibleLights(scene).image((8, 8))
+    assert VisibleLights(scene).image((8, 8)) is image          # the scene's own cache, across instances
+    other = VisibleLights(load_scene("cornell")).image((8, 8))
+    assert other is not image and (other == image).all()        # another scene object computes its own

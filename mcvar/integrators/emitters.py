@@ -355,9 +355,10 @@ class VisibleLights:
         """``(W H, 3)``: per flat pixel ``i W + j``, the box-filtered radiance
         of the exactly handled lights, occlusion ignored (the pixel integral of ``g``).
 
-        Cached by this object, by content (camera, lights, resolution): keep
-        one ``VisibleLights`` per render (every batch asks for the image) and
-        the cache lives and dies with it. Read-only.
+        Cached on the scene object, by content (camera, lights, resolution):
+        derived state of that (frozen) scene, so every batch of a render that
+        holds the scene reuses it and the cache lives and dies with the
+        scene (no module global). Read-only.
         """
         from ..scene import _film_res
 
@@ -368,7 +369,7 @@ class VisibleLights:
             *(self.scene.light_origin[k] for k in self.lights), *(self.scene.light_edge1[k] for k in self.lights),
             *(self.scene.light_edge2[k] for k in self.lights),
             *(self.scene.light_radiance[k] for k in self.lights)))).hexdigest()
-        images = self.__dict__.setdefault("_images", {})
+        images = self.scene.__dict__.setdefault("_visible_light_images", {})
         img = images.get(key)
         if img is None:
             img = self._image(width, height)
