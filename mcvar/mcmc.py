@@ -470,6 +470,10 @@ def metropolis(f: Callable, dim: int, n_steps: int, settings: WalkSettings | Non
     settings : WalkSettings, optional
         ``chains``, ``sigma``, ``p_large``, ``n_bootstrap`` and ``thin`` as
         one record; those keywords replace its fields.
+    rng : None, int, SeedSequence or Generator
+
+    Other Parameters
+    ----------------
     chains : int
         Independent chains run at once (vectorised).
     sigma : float
@@ -481,7 +485,6 @@ def metropolis(f: Callable, dim: int, n_steps: int, settings: WalkSettings | Non
         ``p_large = 0`` is allowed and can make the chain non-ergodic in
         practice (it cannot cross regions where ``f = 0`` wider than a few
         ``sigma``).
-    rng : None, int, SeedSequence or Generator
     n_bootstrap : int
         Independent candidates of the bootstrap.
     thin : int, optional
@@ -564,11 +567,6 @@ def image_walk(image, n_steps: int, settings: WalkSettings | None = None, *, rng
         ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (linear values assumed).
     n_steps : int
         Steps per chain.
-    chains : int
-        Chains at once (the lecture's walk is one chain).
-    sigma, p_large, rng, n_bootstrap, thin
-        As in :func:`metropolis`; ``sigma`` is in units of the image width
-        (x) and height (y).
     splat : {'plain', 'expected'}
         How visits build ``Chain.histogram``:
 
@@ -579,6 +577,14 @@ def image_walk(image, n_steps: int, settings: WalkSettings | None = None, *, rng
           values'; pbrt-v4's MLT film), the expectation of the plain splat
           over the accept/reject coin, so the same walk with less noise,
           and rejected proposals still inform the image.
+
+    Other Parameters
+    ----------------
+    chains : int
+        Chains at once (the lecture's walk is one chain).
+    sigma, p_large, rng, n_bootstrap, thin
+        As in :func:`metropolis`; ``sigma`` is in units of the image width
+        (x) and height (y).
 
     Returns
     -------

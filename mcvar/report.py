@@ -493,11 +493,6 @@ def convergence_report(target, out, settings: SweepSettings | None = None, *, ex
         Output folder; finished runs and references are cached in
         ``out/.cache``, so re-running (or resuming an interrupted run) only
         computes what is missing.
-    methods, samplers, spp : sequence, optional
-        Default per target: scenes ``path`` (Russian roulette), ``path:2``
-        (fixed depth) and ``direct``; samplers random, jittered, sobol;
-        spp 1, 4, 16, 64. Integrands: every estimator of the problem; N = 1,
-        4, ..., 4096.
     settings : SweepSettings, optional
         The sweep's settings; the keywords ``methods``, ``samplers``,
         ``spp``, ``replicates`` (default 8), ``res`` (32), ``rng`` (0;
@@ -507,6 +502,14 @@ def convergence_report(target, out, settings: SweepSettings | None = None, *, ex
         As in :func:`mcvar.experiments.sweep`.
     sections : sequence of str, optional
         Further HTML sections for the page (:func:`write_report`).
+
+    Other Parameters
+    ----------------
+    methods, samplers, spp : sequence, optional
+        Default per target: scenes ``path`` (Russian roulette), ``path:2``
+        (fixed depth) and ``direct``; samplers random, jittered, sobol;
+        spp 1, 4, 16, 64. Integrands: every estimator of the problem; N = 1,
+        4, ..., 4096.
 
     Returns
     -------

@@ -243,10 +243,13 @@ def mis_estimate(f, strategies, *, heuristic: Literal["balance", "power"] = "bal
     strategies : sequence of (sample, pdf)
         K strategies over the same domain and measure: warps
         ``sample(u) -> x`` with their densities ``pdf(x) -> (n,)``.
-    n : int or sequence of int
-        Samples per strategy ``n_k`` (an int gives every strategy the same).
     heuristic : {'balance', 'power'}
         Weighting (:func:`mis_weights`); ``beta`` is the power's exponent.
+
+    Other Parameters
+    ----------------
+    n : int or sequence of int
+        Samples per strategy ``n_k`` (an int gives every strategy the same).
     settings, sampler, rng, replicates, zero_pdf, batch
         As in :func:`estimate` (:class:`EstimateSettings` or its fields; no
         tolerance: ``atol``/``rtol`` are a ``ValueError``); each strategy
@@ -375,12 +378,15 @@ def one_sample_mis(f, strategies, *, probabilities=None, heuristic: Literal["bal
     ----------
     f, strategies
         As in :func:`mis_estimate`.
-    n : int
-        Total samples.
     probabilities : array_like, shape (K,), optional
         Selection probabilities ``c_k`` (> 0, summing to 1); default uniform.
     heuristic, beta, zero_pdf
         As in :func:`mis_estimate`.
+
+    Other Parameters
+    ----------------
+    n : int
+        Total samples.
     settings, sampler, rng, replicates, atol, rtol, level, max_n, batch
         As in :func:`estimate` (:class:`EstimateSettings` or its fields).
 
@@ -420,13 +426,16 @@ def hemisphere_estimate(radiance, *, method: Literal["uniform", "cosine", "mis"]
     radiance : callable
         ``L_i(w) -> (n,)`` or ``(n, 3)`` for local directions ``w`` (normal
         +y), finite and >= 0.
-    n : int
-        Samples.
     method : {'uniform', 'cosine', 'mis'}
         ``'uniform'``: ``p = 1 / (2 pi)``, contribution ``2 pi L_i cos``;
         ``'cosine'``: ``p = cos / pi``, contribution ``pi L_i`` ('more
         radiance per sample'); ``'mis'``: one-sample MIS of the two with the
         balance heuristic (each picked with probability 1/2).
+
+    Other Parameters
+    ----------------
+    n : int
+        Samples.
     settings, sampler, rng, replicates, atol, rtol, level, max_n, batch
         As in :func:`estimate` (:class:`EstimateSettings` or its fields).
 

@@ -435,6 +435,9 @@ def estimate_mean(g, settings: EstimateSettings | None = None, **options) -> Est
         The options below as one record; the keywords ``n``, ``sampler``,
         ``rng``, ``replicates``, ``atol``, ``rtol``, ``level``, ``max_n`` and
         ``batch`` replace its fields (any other keyword is a ``TypeError``).
+
+    Other Parameters
+    ----------------
     n : int
         Number of samples (``>= 1``). With ``replicates = R > 1`` each
         replicate gets ``n // R`` points (``n >= 2 R``) and the Estimate's
@@ -613,10 +616,13 @@ def estimate(f, *, sample=None, pdf=None, zero_pdf: Literal["raise", "drop"] = "
     pdf : callable, optional
         The warp's density ``pdf(x) -> (n,)`` in the measure of the integral
         (solid angle for directions). Default: 1 (uniform on the square).
-    settings, n, sampler, rng, replicates, atol, rtol, level, max_n, batch
-        As in :func:`estimate_mean` (:class:`EstimateSettings` or its fields).
     zero_pdf : {'raise', 'drop'}, optional
         What a sampled point with ``pdf = 0`` and ``f != 0`` means; see Notes.
+
+    Other Parameters
+    ----------------
+    settings, n, sampler, rng, replicates, atol, rtol, level, max_n, batch
+        As in :func:`estimate_mean` (:class:`EstimateSettings` or its fields).
 
     Returns
     -------

@@ -420,6 +420,9 @@ def measure_chart(settings: ChartSettings | None = None, *, cache_dir=None, **op
     settings : ChartSettings, optional
         The keywords below are its fields and replace them (any other keyword
         is a ``TypeError``).
+
+    Other Parameters
+    ----------------
     quick : bool
         :data:`QUICK` settings and each knob's quick levels (``mcvar chart
         --quick``), else :data:`DEFAULT` and the default levels.

@@ -261,16 +261,6 @@ def sweep(target, settings: SweepSettings | None = None, *, reference=None, exec
         ``replicates``, ``rng``, ``res``, ``alpha``, ``image_metrics``,
         ``workers`` and ``progress`` (its fields, documented there and
         below) replace its fields. Any other keyword is a ``TypeError``.
-    methods, samplers : sequence of str, optional
-        Defaults: the target's.
-    spp : sequence of int, optional
-        Samples (per pixel) levels; sorted, duplicates dropped. Default: the
-        target's.
-    replicates : int
-        Independent runs per configuration, >= 3 (the jackknife needs 3).
-    rng : int
-        Root seed of every stream (:func:`run_seed`), >= 0 (runs are cached
-        by it). ``seed=`` is its deprecated alias.
     reference : Reference, str or Path, optional
         The comparison value; default :func:`compute_reference` (exact, or
         rendered and cached in ``cache_dir``).
@@ -282,6 +272,19 @@ def sweep(target, settings: SweepSettings | None = None, *, reference=None, exec
     cache_dir : str or Path, optional
         Folder for finished runs and references; runs found there are not
         recomputed (an interrupted sweep resumes). None: no disk cache.
+
+    Other Parameters
+    ----------------
+    methods, samplers : sequence of str, optional
+        Defaults: the target's.
+    spp : sequence of int, optional
+        Samples (per pixel) levels; sorted, duplicates dropped. Default: the
+        target's.
+    replicates : int
+        Independent runs per configuration, >= 3 (the jackknife needs 3).
+    rng : int
+        Root seed of every stream (:func:`run_seed`), >= 0 (runs are cached
+        by it). ``seed=`` is its deprecated alias.
     res : int
         Resolution of scene targets given by name.
     alpha : float

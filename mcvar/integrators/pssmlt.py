@@ -159,6 +159,9 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         The settings below as one record; the keywords ``max_depth``,
         ``heuristic``, ``chains``, ``sigma``, ``p_large``, ``n_bootstrap``,
         ``bootstrap``, ``splat`` and ``state_depth`` replace its fields.
+
+    Other Parameters
+    ----------------
     rng, max_depth, heuristic, tracer
         As in :func:`mcvar.integrators.trace_camera_paths` (``max_depth=None``:
         Russian roulette).

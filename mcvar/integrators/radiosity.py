@@ -543,6 +543,13 @@ def radiosity(scene: Scene, settings: RadiositySettings | None = None, *, rng=No
     settings : RadiositySettings, optional
         ``patch_size``, ``rays_per_side``, ``emitter_rays``, ``solver`` and
         ``tol`` as one record; those keywords replace its fields.
+    rng : None, int, SeedSequence or Generator
+    tracer : Tracer, optional
+    progress : callable, optional
+        As in :func:`form_factors`.
+
+    Other Parameters
+    ----------------
     patch_size : float
         Longest sub-edge of a patch (scene units; default 40: 1 950 patches,
         3 900 sides in the Cornell box).
@@ -550,10 +557,6 @@ def radiosity(scene: Scene, settings: RadiositySettings | None = None, *, rng=No
         As in :func:`form_factors`.
     solver, tol
         As in :func:`solve_radiosity`.
-    rng : None, int, SeedSequence or Generator
-    tracer : Tracer, optional
-    progress : callable, optional
-        As in :func:`form_factors`.
 
     Returns
     -------

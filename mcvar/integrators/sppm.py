@@ -88,6 +88,16 @@ def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer
         ``res``, ``iterations``, ``photons_per_iteration``, ``radius``,
         ``alpha`` and ``max_depth`` as one record; those keywords replace its
         fields.
+    rng : None, int, SeedSequence or Generator
+    tracer : Tracer, optional
+    callback : callable, optional
+        ``callback(iteration, image_so_far)`` after every iteration.
+    pixel_offsets : ndarray, shape (W H, iterations, 2), optional
+        Position of each iteration's camera ray inside its pixel (e.g. a
+        pixel sampler's points, pixel-major); default iid uniform from ``rng``.
+
+    Other Parameters
+    ----------------
     res : int or (int, int)
         Square side or ``(width, height)``.
     iterations : int
@@ -99,15 +109,8 @@ def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer
         Initial gather radius of every pixel (default :func:`default_radius`).
     alpha : float
         Fraction of new photons kept, in (0, 1) (default 0.7, the paper's).
-    rng : None, int, SeedSequence or Generator
     max_depth : int or None
         Segments of camera (delta) and photon paths; None: Russian roulette.
-    tracer : Tracer, optional
-    callback : callable, optional
-        ``callback(iteration, image_so_far)`` after every iteration.
-    pixel_offsets : ndarray, shape (W H, iterations, 2), optional
-        Position of each iteration's camera ray inside its pixel (e.g. a
-        pixel sampler's points, pixel-major); default iid uniform from ``rng``.
 
     Returns
     -------

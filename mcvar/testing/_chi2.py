@@ -208,6 +208,9 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, settings: Chi2Set
         ``bins``, ``bounds``, ``significance``, ``test_count``,
         ``min_expected``, ``normalization_atol`` and ``batch_size`` replace
         its fields (any other keyword is a ``TypeError``).
+
+    Other Parameters
+    ----------------
     n : int
         Number of samples, failed ones included (drawn in batches of
         ``batch_size``).
@@ -505,6 +508,9 @@ def bsdf_chi2_test(bsdf, wo, settings: Chi2Settings | None = None, **options) ->
     wo : array_like, shape (3,)
         The outgoing unit direction, local space (normal +y). For a
         reflection model it must lie above the horizon (``wo[1] > 0``).
+
+    Other Parameters
+    ----------------
     settings, n, rng, bins, significance, test_count, min_expected, normalization_atol, batch_size
         As in :func:`chi2_test` (``bounds`` excepted); ``n`` counts every
         sample, failed and delta ones included.
