@@ -52,7 +52,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from .._validation import check_count, seed_alias, settings_with
+from .._validation import check_bool, check_count, seed_alias, settings_with
 from ..integrators.knobs import Knob, depth_knob, spp_knob
 from .targets import Target, _check_reference_settings, _scene, parse_method
 from .runs import SerialExecutor, root_seed
@@ -472,6 +472,8 @@ def measure_chart(settings: ChartSettings | None = None, *, cache_dir=None, **op
     seed, scene = root_seed(opts.rng, where="measure_chart"), opts.scene
     res, replicates, reference_spp, reference_chunks = (opts.res, opts.replicates, opts.reference_spp,
                                                         opts.reference_chunks)
+    check_bool(quick, "quick")
+    check_bool(progress, "progress")
     settings = dict(QUICK if quick else DEFAULT)
     for name, value in (("res", res), ("replicates", replicates), ("reference_spp", reference_spp),
                         ("reference_chunks", reference_chunks)):

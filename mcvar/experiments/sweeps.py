@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_count, check_probability, seed_alias, settings_with
-from .targets import make_target
+from .._validation import check_bool, check_count, check_probability, seed_alias, settings_with
+from .targets import make_target, parse_method
 from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, root_seed, run_seed
 from .reference import Reference, compute_reference
 from .denoising import DENOISE_SUFFIX, denoised_target
@@ -154,6 +154,9 @@ def _plan(target, settings: SweepSettings) -> _Plan:
                                    ([methods] if isinstance(methods, str) else methods)):
         target = denoised_target(target)
     methods = _as_names(methods if methods is not None else target.methods, "methods")
+    _check_methods(target, methods)
+    check_bool(settings.progress, "progress")
+    check_bool(settings.image_metrics, "image_metrics")
     samplers = _as_names(settings.samplers if settings.samplers is not None else target.samplers, "samplers")
     levels = _as_levels(settings.spp if settings.spp is not None else target.spp)
     replicates = check_count(settings.replicates, "replicates")
@@ -245,6 +248,26 @@ def _measure(plan: _Plan, values: dict, secs: dict, ref, image_metrics: bool, co
     return SweepResult(plan.target.name, plan.methods, plan.samplers, plan.levels, plan.replicates, plan.seed,
                        ref, metrics, fits, verdicts, stacked, secs, computed=counts[0], cached=counts[1],
                        alpha=plan.alpha, alpha_family=alpha_family)
+
+
+def _check_methods(target, methods) -> None:
+    """Every method name is one the target can run (a ValueError naming the
+    unknown ones and the known ones, before any run): an integrand's own
+    methods, a scene's registered integrators (``'integrator[:max_depth]'``,
+    optionally denoised); a user target's names are its own business."""
+    plain = [m[:-len(DENOISE_SUFFIX)] if m.endswith(DENOISE_SUFFIX) else m for m in methods]
+    if target.key.startswith("integrand="):
+        unknown = [m for m, p in zip(methods, plain) if p not in target.methods]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not methods of the integrand {target.name!r}; "
+                             f"it has {tuple(target.methods)}")
+    elif target.key.startswith("scene="):
+        from ..integrators import METHODS
+
+        unknown = [m for m, p in zip(methods, plain) if parse_method(p)[0] not in METHODS]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not registered integrators; methods are "
+                             f"'integrator[:max_depth]' with integrator one of {tuple(METHODS)}")
 
 
 def sweep(target, settings: SweepSettings | None = None, *, reference=None, executor: Executor | None = None,

@@ -27,7 +27,7 @@ from .._validation import as_rng, check_count, check_positive, settings_with
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
-from .photon import _gather, check_photon_method_scene, check_photon_scene, trace_photons, visible_points
+from .photon import _gather, check_photon_budget, check_photon_method_scene, check_photon_scene, trace_photons, visible_points
 from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import CAMERA_DIMS, SampleStream
@@ -130,8 +130,8 @@ def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer
     opts = settings_with(SPPMSettings, settings, options, "sppm")
     res, radius, max_depth = opts.res, opts.radius, opts.max_depth
     iterations = check_count(opts.iterations, "iterations")
-    photons_per_iteration = check_count(opts.photons_per_iteration, "photons_per_iteration")
-    alpha = float(opts.alpha)
+    photons_per_iteration = check_photon_budget(opts.photons_per_iteration, "photons_per_iteration")
+    alpha = check_positive(opts.alpha, "alpha")
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
     r0 = default_radius(scene) if radius is None else check_positive(radius, "radius")

@@ -204,10 +204,8 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, settings: Chi2Set
         'square' is [0, 1]^2, 'disk' the unit disk, 'hemisphere' the
         directions with ``y >= 0`` (normal +y) and 'sphere' all directions.
     settings : Chi2Settings, optional
-        The options below as one record; the keywords ``n``, ``rng``,
-        ``bins``, ``bounds``, ``significance``, ``test_count``,
-        ``min_expected``, ``normalization_atol`` and ``batch_size`` replace
-        its fields (any other keyword is a ``TypeError``).
+        The options below (Other Parameters) as one record; those keywords
+        replace its fields (any other keyword is a ``TypeError``).
 
     Other Parameters
     ----------------
