@@ -304,3 +304,48 @@ def check_budget(name: str, value, needed_bytes: float, *, per_unit: float | Non
     raise ValueError(f"{label} needs about {format_bytes(need)} of memory{held}, more than the "
                      f"budget of {format_bytes(limit)}{fit} (raise mcvar._validation.MEMORY_BUDGET "
                      "if the machine has the memory)")
+
+
+def settings_with(cls, settings, options: dict, where: str):
+    """``settings`` (an instance of the frozen dataclass ``cls``; None: its defaults) with the
+    keyword ``options`` replacing fields, the way a function taking a settings record keeps
+    its documented keywords: an unknown keyword is a ``TypeError`` naming the accepted ones.
+
+    Examples
+    --------
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class S:
+    ...     n: int = 1
+    >>> settings_with(S, None, {"n": 3}, "f")
+    S(n=3)
+    """
+    from dataclasses import fields, replace
+
+    if settings is None:
+        settings = cls()
+    elif not isinstance(settings, cls):
+        raise TypeError(f"{where}: settings must be a {cls.__name__}; got {type(settings).__name__}")
+    names = [f.name for f in fields(cls)]
+    unknown = [k for k in options if k not in names]
+    if unknown:
+        raise TypeError(f"{where}() got unexpected keyword argument(s) {', '.join(map(repr, unknown))}; "
+                        f"its settings ({cls.__name__}) are {', '.join(names)}")
+    return replace(settings, **options) if options else settings
+
+
+def seed_alias(options: dict, where: str, *, name: str = "rng") -> dict:
+    """``options`` with the deprecated keyword ``seed`` renamed to ``rng`` (a DeprecationWarning;
+    both at once is a TypeError). mcvar's Python API says ``rng`` everywhere; ``--seed`` stays
+    the command line's word."""
+    if "seed" not in options:
+        return options
+    import warnings
+
+    options = dict(options)
+    if name in options:
+        raise TypeError(f"{where}() got both {name}= and its deprecated alias seed=; pass {name}= only")
+    warnings.warn(f"{where}(seed=...) is deprecated: pass {name}= (the same integer)", DeprecationWarning,
+                  stacklevel=3)
+    options[name] = options.pop("seed")
+    return options

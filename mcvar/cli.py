@@ -43,7 +43,7 @@ def _name_list(text: str) -> list[str]:
 def _cmd_samplers(args) -> int:
     from .sampler_report import write_samplers_report
 
-    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, seed=args.seed,
+    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, rng=args.seed,
                                   progress=not args.quiet)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -124,7 +124,13 @@ def _adaptive_default(args) -> bool:
     from .adaptive import ADAPTIVE_INTEGRATORS
 
     return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
-            and args.sampler not in ("grid", "jittered") and args.spp >= 16)
+            and not _square_sampler(args.sampler) and args.spp >= 16)
+
+
+def _square_sampler(name: str) -> bool:
+    from .samplers import SAMPLERS
+
+    return name in SAMPLERS and SAMPLERS[name].square
 
 
 def _cmd_converge(args) -> int:
@@ -150,7 +156,7 @@ def _cmd_converge(args) -> int:
             methods = [f"path:{given['max_depth']}"]
     paths = convergence_report(target, args.out, methods=methods, samplers=args.samplers,
                                spp=args.spp, replicates=args.replicates, res=32 if res is None else res,
-                               seed=args.seed, workers=args.workers, progress=not args.quiet,
+                               rng=args.seed, workers=args.workers, progress=not args.quiet,
                                reference=args.reference)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -158,7 +164,7 @@ def _cmd_converge(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from .report import demo
+    from .demo import demo
 
     paths = demo(args.out, progress=not args.quiet)
     if not args.no_best:
@@ -180,12 +186,37 @@ def _cmd_demo(args) -> int:
 def _cmd_chart(args) -> int:
     from .chart_report import chart_report
 
-    paths = chart_report(args.out, quick=args.quick, methods=args.methods, seed=args.seed,
+    paths = chart_report(args.out, quick=args.quick, methods=args.methods, rng=args.seed,
                          workers=args.workers, progress=not args.quiet,
                          command="mcvar " + " ".join(sys.argv[1:]))
     for key, path in paths.items():
         print(f"{key}: {path}")
     return 0
+
+
+class _RegistryHelp(str):
+    """A help text naming the registered methods, filled in only when help is shown
+    (argparse formats help with ``%``): building the parser imports no integrator."""
+
+    def __new__(cls, template: str, what: str):
+        obj = super().__new__(cls, template)
+        obj.what = what
+        return obj
+
+    def __mod__(self, params):
+        if self.what == "samplers":
+            from .samplers import SAMPLERS
+
+            names = ", ".join(SAMPLERS)
+        elif self.what == "rows":
+            from .experiments.chart import chart_methods
+
+            names = ", ".join(chart_methods())
+        else:
+            from .integrators import METHODS
+
+            names = ", ".join(METHODS)
+        return str.__mod__(str(self).replace("{" + self.what + "}", names.replace("%", "%%")), params)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -219,11 +250,12 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "scene file's film)")
     p.add_argument("--spp", type=int, default=None, help="samples per pixel (default 16, or a scene file's "
                                                          "sample_count)")
-    p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
-                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster, "
-                                                          "position: any method of mcvar.integrators.METHODS")
-    p.add_argument("--sampler", default="sobol", help="pixel sampler name from mcvar.samplers (default sobol; "
-                                                        "the previous default was random)")
+    p.add_argument("--integrator", default="path",
+                   help=_RegistryHelp("rendering method, any of mcvar.integrators.METHODS: {methods} "
+                                      "(default path: NEE + MIS)", "methods"))
+    p.add_argument("--sampler", default="sobol",
+                   help=_RegistryHelp("pixel sampler, any of mcvar.samplers.SAMPLERS: {samplers} (default sobol; "
+                                      "the previous default was random)", "samplers"))
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
@@ -263,12 +295,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "MODULE (importable from the current folder); methods from --methods or the "
                         "module's METHODS; reference from --reference, EXACT or reference(rng)")
     p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
-                   default=None, help="comma-separated integrators (scenes; 'path:3' stops paths at "
+                   default=None, help="comma-separated rendering methods (scenes; 'path:3' stops paths at "
                                       "depth 3, 'path' uses Russian roulette) or the problem's "
                                       "estimators (integrands); default: path,path:2,direct or "
-                                      "every estimator")
+                                      "every estimator (--integrators and --estimators are aliases)")
     p.add_argument("--samplers", type=_name_list, default=None,
-                   help="comma-separated sampler names (default random,jittered,sobol)")
+                   help=_RegistryHelp("comma-separated sampler names ({samplers}; default "
+                                      "random,jittered,sobol)", "samplers"))
     p.add_argument("--spp", type=_int_list, default=None,
                    help="comma-separated spp (or N) levels (default 1,4,16,64 for scenes, "
                         "1,4,...,4096 for integrands)")
@@ -306,8 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="16 x 16 pixels, 10 replicates (under 2 minutes "
                                                         "for spp methods on 2 cores)")
     p.add_argument("--methods", type=_name_list, default=None,
-                   help="comma-separated chart methods (raster, path, path_depth3, light, bdpt, pssmlt, "
-                        "photon, sppm, radiosity); default: every registered one")
+                   help=_RegistryHelp("comma-separated chart methods ({rows}; 'path_depth3' is an alias of "
+                                      "'path:3'); default: every registered one", "rows"))
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)

@@ -44,12 +44,14 @@ from typing import Callable
 import numpy as np
 
 from ._validation import (as_array, as_rng, check_budget, check_choice, check_count, check_positive,
-                          check_probability)
+                          check_probability, settings_with)
 from .envmap import LUMINANCE_WEIGHTS
 from .estimators import Estimate
 
 __all__ = [
     "Chain",
+    "WalkSettings",
+    "IMAGE_WALK",
     "metropolis",
     "image_walk",
     "integrated_time",
@@ -444,9 +446,11 @@ def _mutate(x: np.ndarray, sigma: float, p_large: float, rng) -> np.ndarray:
     return y
 
 
-def _walk(evaluate, x, fx, payload, n_steps, sigma, p_large, rng, visit=None, thin=1):
+def _walk(evaluate, start, n_steps, mutation, rng, visit=None, thin=1):
     """The Metropolis loop shared by :func:`metropolis`, :func:`image_walk` and PSSMLT.
 
+    ``start = (x, fx, payload)``: the chains' first states, their values and
+    payloads (or None); ``mutation = (sigma, p_large)``: Kelemen's mutation.
     ``evaluate(points) -> (f, payload or None)``; ``visit(x, fx, px, y, fy,
     py, a, acc)`` is called at every step with the current state, the
     proposal, the acceptance probability and the accept flags (before the
@@ -455,6 +459,8 @@ def _walk(evaluate, x, fx, payload, n_steps, sigma, p_large, rng, visit=None, th
     and the number of steps done (fewer than ``n_steps`` after Ctrl-C, which
     keeps the finished steps).
     """
+    x, fx, payload = start
+    sigma, p_large = mutation
     chains, dim = x.shape
     n_kept = -(-n_steps // thin)
     samples = np.empty((n_kept, chains, dim))
@@ -493,8 +499,25 @@ def _stride(n_steps, chains, dim, thin):
     return check_count(thin, "thin")
 
 
-def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: float = 0.01,
-               p_large: float = 0.1, rng=None, n_bootstrap: int = N_BOOTSTRAP, thin: int | None = None) -> Chain:
+@dataclass(frozen=True)
+class WalkSettings:
+    """The chains of a Metropolis walk: how many, Kelemen's mutation (``sigma``, ``p_large``),
+    the bootstrap size and the thinning (None: chosen to bound memory). The keywords of
+    :func:`metropolis` (these defaults) and :func:`image_walk` (``chains=1, sigma=0.02``)."""
+
+    chains: int = 64
+    sigma: float = 0.01
+    p_large: float = 0.1
+    n_bootstrap: int = N_BOOTSTRAP
+    thin: int | None = None
+
+
+#: :func:`image_walk`'s defaults: one chain, larger small steps.
+IMAGE_WALK = WalkSettings(chains=1, sigma=0.02)
+
+
+def metropolis(f: Callable, dim: int, n_steps: int, settings: WalkSettings | None = None, *, rng=None,
+               **options) -> Chain:
     """Metropolis-Hastings sampling of ``f / b`` on ``[0, 1)^dim`` with Kelemen's mutations.
 
     Parameters
@@ -507,6 +530,13 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
         Dimension of the state.
     n_steps : int
         Mutations per chain, ``>= 1``.
+    settings : WalkSettings, optional
+        ``chains``, ``sigma``, ``p_large``, ``n_bootstrap`` and ``thin`` as
+        one record; those keywords replace its fields.
+    rng : None, int, SeedSequence or Generator
+
+    Other Parameters
+    ----------------
     chains : int
         Independent chains run at once (vectorised).
     sigma : float
@@ -518,7 +548,6 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
         ``p_large = 0`` is allowed and can make the chain non-ergodic in
         practice (it cannot cross regions where ``f = 0`` wider than a few
         ``sigma``).
-    rng : None, int, SeedSequence or Generator
     n_bootstrap : int
         Independent candidates of the bootstrap.
     thin : int, optional
@@ -555,9 +584,10 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
     """
     if not callable(f):
         raise TypeError(f"f must be callable; got {type(f).__name__}")
-    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(dim, n_steps, chains, sigma, p_large,
-                                                                    n_bootstrap)
-    thin = _stride(n_steps, chains, dim, thin)
+    opts = settings_with(WalkSettings, settings, options, "metropolis")
+    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(dim, n_steps, opts.chains, opts.sigma,
+                                                                    opts.p_large, opts.n_bootstrap)
+    thin = _stride(n_steps, chains, dim, opts.thin)
     check_walk_budget(dim, chains, n_bootstrap, n_steps, thin)
     rng = as_rng(rng)
 
@@ -565,7 +595,7 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
         return _evaluate(f, u), None
 
     x, fx, _, b = _bootstrap(evaluate, dim, chains, n_bootstrap, rng)
-    samples, values, accepted, n_acc, done = _walk(evaluate, x, fx, None, n_steps, sigma, p_large, rng,
+    samples, values, accepted, n_acc, done = _walk(evaluate, (x, fx, None), n_steps, (sigma, p_large), rng,
                                                    thin=thin)
     return Chain(samples, values, accepted, n_acc / (done * chains), b, thin, done)
 
@@ -590,8 +620,8 @@ def _pixel_index(u: np.ndarray, height: int, width: int) -> np.ndarray:
     return row * width + col
 
 
-def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_large: float = 0.1, rng=None,
-               splat: str = "plain", n_bootstrap: int = N_BOOTSTRAP, thin: int | None = None) -> Chain:
+def image_walk(image, n_steps: int, settings: WalkSettings | None = None, *, rng=None, splat: str = "plain",
+               **options) -> Chain:
     """The lecture's 'Sampling An Image': a Metropolis walk whose visits reproduce ``image``.
 
     Parameters
@@ -601,11 +631,6 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
         ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (linear values assumed).
     n_steps : int
         Steps per chain.
-    chains : int
-        Chains at once (the lecture's walk is one chain).
-    sigma, p_large, rng, n_bootstrap, thin
-        As in :func:`metropolis`; ``sigma`` is in units of the image width
-        (x) and height (y).
     splat : {'plain', 'expected'}
         How visits build ``Chain.histogram``:
 
@@ -616,6 +641,14 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
           values'; pbrt-v4's MLT film), the expectation of the plain splat
           over the accept/reject coin, so the same walk with less noise,
           and rejected proposals still inform the image.
+
+    Other Parameters
+    ----------------
+    chains : int
+        Chains at once (the lecture's walk is one chain).
+    sigma, p_large, rng, n_bootstrap, thin
+        As in :func:`metropolis`; ``sigma`` is in units of the image width
+        (x) and height (y).
 
     Returns
     -------
@@ -635,9 +668,10 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
     lum = _luminance(image)
     height, width = lum.shape
     check_choice(splat, "splat", ("plain", "expected"))
-    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(2, n_steps, chains, sigma, p_large,
-                                                                    n_bootstrap)
-    thin = _stride(n_steps, chains, dim, thin)
+    opts = settings_with(WalkSettings, IMAGE_WALK if settings is None else settings, options, "image_walk")
+    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(2, n_steps, opts.chains, opts.sigma,
+                                                                    opts.p_large, opts.n_bootstrap)
+    thin = _stride(n_steps, chains, dim, opts.thin)
     check_walk_budget(dim, chains, n_bootstrap, n_steps, thin, payload_words=1)
     rng = as_rng(rng)
     flat = lum.ravel()
@@ -658,7 +692,7 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
             hist[:] += np.bincount(np.where(acc, py, px), minlength=n_pix)
 
     x, fx, px, b = _bootstrap(evaluate, dim, chains, n_bootstrap, rng)
-    samples, values, accepted, n_acc, done = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng,
+    samples, values, accepted, n_acc, done = _walk(evaluate, (x, fx, px), n_steps, (sigma, p_large), rng,
                                                    visit=visit, thin=thin)
     hist = hist.reshape(height, width) / hist.sum()
     return Chain(samples, values, accepted, n_acc / (done * chains), b, thin, done,

@@ -63,17 +63,18 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .._validation import as_array, as_rng, check_budget, check_choice, check_count, check_positive
+from .._validation import as_array, as_rng, check_budget, check_choice, check_count, check_positive, settings_with
 from ..bsdf import Lambertian
 from ..geometry import Frame
 from ..scene import Scene
 from ..tracer import Tracer
 from ..warps import _plane_coords, square_to_cosine_hemisphere, square_to_uniform_triangle
 from .film import BatchJob, BatchResult, camera_result
+from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import camera_rays
 
-__all__ = ["Patches", "FormFactors", "Radiosity", "check_diffuse", "mesh_patches",
+__all__ = ["Patches", "FormFactors", "Radiosity", "RadiositySettings", "check_diffuse", "mesh_patches",
            "form_factors", "solve_radiosity", "radiosity", "SOLVERS", "run_radiosity_batch", "patch_count",
            "BYTES_PER_PATCH", "BYTES_PER_NONZERO"]
 
@@ -567,15 +568,35 @@ class Radiosity:
         return out
 
 
-def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 256,
-              emitter_rays: int = 1 << 20, solver: str = "jacobi",
-              tol: float = 1e-6, rng=None, tracer: Tracer | None = None, progress=None) -> Radiosity:
+@dataclass(frozen=True)
+class RadiositySettings:
+    """The mesh, form-factor and solver settings of :func:`radiosity` (its keywords)."""
+
+    patch_size: float = 40.0
+    rays_per_side: int = 256
+    emitter_rays: int = 1 << 20
+    solver: str = "jacobi"
+    tol: float = 1e-6
+
+
+def radiosity(scene: Scene, settings: RadiositySettings | None = None, *, rng=None, tracer: Tracer | None = None,
+              progress=None, **options) -> Radiosity:
     """Mesh, form factors and solve: the whole finite-element radiosity of ``scene``.
 
     Parameters
     ----------
     scene : Scene
         Lambertian triangles only (:func:`check_diffuse`).
+    settings : RadiositySettings, optional
+        ``patch_size``, ``rays_per_side``, ``emitter_rays``, ``solver`` and
+        ``tol`` as one record; those keywords replace its fields.
+    rng : None, int, SeedSequence or Generator
+    tracer : Tracer, optional
+    progress : callable, optional
+        As in :func:`form_factors`.
+
+    Other Parameters
+    ----------------
     patch_size : float
         Longest sub-edge of a patch (scene units; default 40: 1 950 patches,
         3 900 sides in the Cornell box).
@@ -583,15 +604,14 @@ def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 25
         As in :func:`form_factors`.
     solver, tol
         As in :func:`solve_radiosity`.
-    rng : None, int, SeedSequence or Generator
-    tracer : Tracer, optional
-    progress : callable, optional
-        As in :func:`form_factors`.
 
     Returns
     -------
     Radiosity
     """
+    opts = settings_with(RadiositySettings, settings, options, "radiosity")
+    patch_size, rays_per_side, emitter_rays, solver, tol = (opts.patch_size, opts.rays_per_side,
+                                                            opts.emitter_rays, opts.solver, opts.tol)
     check_diffuse(scene)
     _check_radiosity_budget(scene, patch_size, rays_per_side, emitter_rays)
     start = time.perf_counter()
@@ -654,4 +674,12 @@ register(Method(
     "radiosity", "first_hit", run_radiosity_batch,
     "finite-element radiosity: patches, ray-cast form factors, (I - rho F) B = E, flat lookup at the first hit",
     options=dict(patch_size=70.0, rays_per_side=256, emitter_rays=1 << 18, solver="jacobi"),
-    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no")))
+    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no"),
+    chart_row="Finite Element Radiosity",
+    # the chart: patch size halves as the level quadruples; form-factor rays, emitter rays and pixel
+    # samples refined with it (at fixed spp the pixel-sampling noise would hide the shrinking mesh bias)
+    knob=scaled_knob("mesh refinement (patch size 280 / sqrt(level))", "radiosity",
+                     {"spp": (4, 1), "patch_size": (280.0, -0.5), "rays_per_side": (16, 0.5),
+                      "emitter_rays": (4096, 1)}),
+    theory=("yes", "no", "radiosity's mesh: piecewise-constant patches bias the image; the bias falls only as "
+                         "the mesh is refined (its knob here), never with spp")))

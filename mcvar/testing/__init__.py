@@ -28,7 +28,7 @@ holds the course's exercises (graders and stubs; their answers live in the
 test suite, not here) and :mod:`mcvar.testing.bugs` the classes of the 'find
 the bug' notebook.
 """
-from ._chi2 import Chi2Result, bsdf_chi2_test, chi2_test, sidak_significance
+from ._chi2 import Chi2Result, Chi2Settings, bsdf_chi2_test, chi2_test, sidak_significance
 from ._domains import DOMAINS, Domain
 from .checks import (BSDFLike, CheckResult, PowerResult, check_extremes, check_inverse, check_pdf_normalized,
                      check_unbiased, check_weight_consistency, measure_power)
@@ -43,6 +43,7 @@ __all__ = [
     "BSDFLike",
     "sidak_significance",
     "chi2_test",
+    "Chi2Settings",
     "bsdf_chi2_test",
     "check_pdf_normalized",
     "check_weight_consistency",
