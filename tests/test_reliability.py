@@ -379,7 +379,10 @@ def test_sweep_and_chart_name_their_arguments(monkeypatch):
         sweep("hemisphere", methods=["nosuch"], spp=[4], replicates=3, workers=1, progress=False)
     with pytest.raises(ValueError, match=r"methods \['nosuch:2'\] are not registered integrators"):
         sweep("cornell", methods=["path", "nosuch:2"], spp=[4], replicates=3, workers=1, progress=False, res=4)
-    with pytest.raises(ValueError, match="seed must be >= 0; got -1"):
+    # rng is the Python API's word (issue 20); seed= is its deprecated alias, checked as rng
+    with pytest.raises(ValueError, match="rng must be >= 0; got -1"):
+        measure_chart(rng=-1, progress=False)
+    with pytest.raises(ValueError, match="rng must be >= 0; got -1"), pytest.warns(DeprecationWarning):
         measure_chart(seed=-1, progress=False)
     with pytest.raises(TypeError, match="progress must be a bool"):
         sweep("hemisphere", spp=[4], replicates=3, workers=1, progress="no")

@@ -49,10 +49,17 @@ def _is_module(dotted: str) -> bool:
 
 
 def _imports(path: Path) -> set:
-    """Every mcvar module ``path`` imports, anywhere in the file (functions included)."""
+    """Every mcvar module ``path`` imports, anywhere in the file (functions included),
+    except under ``if TYPE_CHECKING:`` (annotations only: never executed)."""
     _, package = _module_name(path)
     found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    typing_only = {id(n) for top in ast.walk(tree) if isinstance(top, ast.If)
+                   and getattr(top.test, "id", getattr(top.test, "attr", None)) == "TYPE_CHECKING"
+                   for n in ast.walk(top)}
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package[:len(package) - (node.level - 1)]

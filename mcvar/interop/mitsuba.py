@@ -68,7 +68,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 import json
 import math
 import os
@@ -81,7 +81,14 @@ import numpy as np
 from .._validation import as_rng, check_choice, check_count
 from ..bsdf import Conductor, Glass, Lambertian, Mirror
 from ..envmap import EnvironmentMap
-from ..scene import Scene
+
+if TYPE_CHECKING:  # annotations only: importing mcvar.scene here would make a cycle with scene.save_scene
+    from ..scene import Scene
+
+#: What a scene must hold to be exported (duck-typed: mcvar.scene imports this
+#: module inside save_scene, so this module does not import mcvar.scene).
+_SCENE_FIELDS = ("triangles", "sphere_centers", "sphere_radii", "prim_material", "prim_emission", "prim_light",
+                 "materials", "material_names", "camera", "light_origin", "point_light_position")
 
 __all__ = ["to_mitsuba", "render_mitsuba", "scene_fingerprint", "INTEGRATORS", "EXPORTER_VERSION"]
 
@@ -413,7 +420,7 @@ def scene_dict(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
     ``to_world`` values and writing its EXR images (the one mapping from
     Scene to Mitsuba, shared by :func:`to_mitsuba` and
     :func:`mcvar.scene.save_scene`)."""
-    if not isinstance(scene, Scene):
+    if not all(hasattr(scene, a) for a in _SCENE_FIELDS):
         raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
     width, height = _as_res(res)
     spp = check_count(spp, "spp")
