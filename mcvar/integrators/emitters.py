@@ -223,7 +223,7 @@ class Emitters:
         ks = [0] if li is None else np.unique(li)
         for k in ks:
             sel = slice(None) if li is None else np.flatnonzero(li == k)
-            w[:, sel], dist[sel], s = _spherical_rectangle_soa(u[0, sel], u[1, sel], p[:, sel],
+            w[:, sel], dist[sel], s = _spherical_rectangle_soa(u[:, sel], p[:, sel],
                                                               self.scene.light_origin[k], *self.rect[k])
             pdf[sel] = self._rect_pdf(int(k), p[:, sel], s)
         le = np.broadcast_to(self.radiance_soa[:, :1], (3, m)) if li is None else \
