@@ -918,3 +918,6 @@ def _pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -
             row[...] = col
             row *= scale
     return out[:d]
+
+
+pixel_sample_columns = _pixel_sample_columns
