@@ -184,5 +184,5 @@ class TestEveryMethod:
 
 
 def test_unknown_method_names_the_known_ones():
-    with pytest.raises(ValueError, match="integrator must be one of.*path"):
+    with pytest.raises(ValueError, match="method must be one of.*path"):
         render(load_scene("cornell"), integrator="whitted")

@@ -260,7 +260,7 @@ def test_trace_paths_empty_batch(cornell):
 @pytest.mark.parametrize("kwargs,match", [
     ({"spp": 0}, "spp must be >= 1"),
     ({"spp": -3}, "spp must be >= 1"),
-    ({"integrator": "whitted"}, "integrator must be one of"),
+    ({"integrator": "whitted"}, "method must be one of"),
     ({"sampler": "dart"}, "sampler must be one of"),
     ({"res": 0}, "res must be >= 1"),
     ({"res": (8, 0)}, "height"),
@@ -370,19 +370,20 @@ def test_batches_trace_slices_of_one_stratified_set_per_pixel():
     # A 64-spp Sobol render traced in four 16-spp batches must still see each
     # pixel's 64 points as one (0, 6, 2)-net, not four unrelated 16-point nets.
     from mcvar.discrepancy import is_net
-    from mcvar.integrators import WHOLE_SET_FLOATS, _sample_slices
+    from mcvar.integrators import WHOLE_SET_FLOATS, _whole_pattern
 
     rng = np.random.default_rng(60606)
-    slices = _sample_slices("sobol", 5, 64, [16, 16, 16, 16], 6, rng)
-    assert [s.shape for s in slices] == [(5, 16, 6)] * 4
-    whole = np.concatenate(slices, axis=1)
+    whole = _whole_pattern("sobol", 5, 64, 4, 6, rng)      # batches slice it: whole[:, 16 b:16 (b + 1)]
+    assert whole.shape == (5, 64, 6)
     for pixel in whole:
         assert is_net(pixel[:, 0:2], 6)  # the pixel-position pair
         assert is_net(pixel[:, 2:4], 6)  # and a padded pair
-    # iid points have nothing to keep, and sets past the budget are drawn per batch
-    assert _sample_slices("random", 5, 64, [16] * 4, 6, rng) == [None] * 4
+    # iid points have nothing to keep, one batch needs no pattern, and sets
+    # past the budget are drawn per batch
+    assert _whole_pattern("random", 5, 64, 4, 6, rng) is None
+    assert _whole_pattern("sobol", 5, 64, 1, 6, rng) is None
     n_pix = WHOLE_SET_FLOATS // 64 // 2 + 1      # not even one pair of dimensions fits
-    assert _sample_slices("sobol", n_pix, 64, [16] * 4, 6, rng) == [None] * 4
+    assert _whole_pattern("sobol", n_pix, 64, 4, 6, rng) is None
 
 
 def test_camera_soa_directions_are_the_public_ones_transposed():
