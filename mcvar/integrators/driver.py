@@ -418,13 +418,14 @@ class _Render:
                 if callback is not None:
                     callback(self.done, self.total)
 
-    def result(self, *, image, variance, spp, rays, batch_spp, extra=None, cls=Render, **more) -> Render:
+    def result(self, cls=Render, **fields) -> Render:
+        """The :class:`Render` (or ``cls``) of ``fields`` (image, variance, spp, rays,
+        batch_spp, extra, ...) and the render's settings, time and interruption."""
         plan = self.plan
-        return cls(image=image, spp=spp, seconds=time.perf_counter() - self._start, interrupted=self.interrupted,
-                   variance=variance, rays=rays, scene=plan.scene.name, method=plan.method.name,
-                   sampler=plan.sampler, res=plan.res, max_depth=plan.settings.max_depth,
-                   heuristic=plan.settings.heuristic, batch_spp=batch_spp, workers=plan.run.workers,
-                   precision=plan.run.precision, options=plan.options, extra=extra or {}, **more)
+        return cls(seconds=time.perf_counter() - self._start, interrupted=self.interrupted, scene=plan.scene.name,
+                   method=plan.method.name, sampler=plan.sampler, res=plan.res, max_depth=plan.settings.max_depth,
+                   heuristic=plan.settings.heuristic, workers=plan.run.workers, precision=plan.run.precision,
+                   options=plan.options, **fields)
 
 
 # ---------------------------------------------------------------------------

@@ -225,15 +225,15 @@ def _trace_general(tr: Transport, o, d) -> None:
         fs, fn, ft = frame
         wo_l = np.stack([dot(wo, fs), dot(wo, fn), dot(wo, ft)])
         # -- next-event estimation (adds paths of k + 1 segments)
+        vertex = Vertex(k, state.idx, frame, wo_local=wo_l, groups=groups, materials=materials)
         if tr.nee and k + 1 <= tr.limit:
-            _next_event(tr, state, k, groups, p, ng, frame, wo_l, prim)
+            _next_event(tr, state, vertex, p, ng, prim)
         # -- continue the path by BSDF sampling? (without bsdf_hits only
         # through delta lobes, whose emission light sampling cannot find)
         last = k + 1 == tr.limit and not tr.bsdf_hits
         if k + 1 > tr.limit or (last and not (tables.any_delta or tables.hidden_emitters)):
             break
-        dirs = sample_directions(Vertex(k, state.idx, frame, wo_local=wo_l, groups=groups,
-                                        materials=materials), stream)
+        dirs = sample_directions(vertex, stream)
         state.beta[...] *= dirs.weight
         wi, pdf = dirs.wi, dirs.pdf
         keep_all = not last or tables.hidden_emitters
@@ -248,13 +248,14 @@ def _trace_general(tr: Transport, o, d) -> None:
             state.take(np.flatnonzero(alive))
 
 
-def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, prim) -> None:
+def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) -> None:
     """Connect every shading point to an emitter; add the unoccluded contributions.
 
-    SoA arrays (3, m), rows sorted by material (``groups``: material, start, end).
+    SoA arrays (3, m), rows sorted by material (``vertex.groups``: material, start, end).
     """
     m = p.shape[1]
     idx = state.idx
+    k, groups, frame, wo_l = vertex.k, vertex.groups, vertex.frame, vertex.wo_local
     u = tr.stream.vertex(k, LIGHT, 2, idx)
     u_sel = tr.stream.vertex(k, LIGHT_SELECT, 1, idx)[0] if tr.emitters.n_emitters > 1 else None
     w, dist, le, pdf_l, light = tr.emitters.sample_li(p, u, u_sel)

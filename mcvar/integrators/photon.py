@@ -524,4 +524,4 @@ register(Method(
     "photon mapping (Jensen 1996): photons from the lights, density estimation at the first diffuse hit",
     options=dict(photons=1 << 17, k=None, radius=None),
     prepare=_prepare_photon, check_scene=check_photon_method_scene, uses_max_depth=False,
-    lecture=("yes", "no")))
+    lecture=("yes", "no"), stream_dims=2))

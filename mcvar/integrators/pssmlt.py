@@ -281,4 +281,4 @@ def _check_options(scene, options) -> None:
 register(Method("pssmlt", "chain", run_batch,
                 "primary-sample-space Metropolis light transport (Kelemen 2002): chains on the path "
                 "tracer's random numbers, expected-value splatting, bootstrap",
-                options=OPTIONS, check_scene=_check_options, lecture=("yes", "yes")))
+                options=OPTIONS, check_scene=_check_options, lecture=("yes", "yes"), stream_dims=0))
