@@ -121,7 +121,7 @@ def allocate(sigma, budget: int, *, min_spp: int, max_spp: int, exponent: float 
     return counts(a)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Spec:
     """One batch of a stage: ``spp`` samples of each pixel in ``pixels``
     (None: every pixel), ``whole``: its slice of the kept pattern."""

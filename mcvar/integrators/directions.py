@@ -53,7 +53,8 @@ class Vertex:
         0 where ``wo`` grazes the surface).
     albedo : ndarray (3, m) or None
         Lambertian kernel: each point's albedo (its presence selects the
-        written-out cosine sampling).
+        written-out cosine sampling; an array the vertex owns is reused for
+        the weights).
     """
 
     k: int
@@ -139,7 +140,7 @@ def _cosine(vertex: Vertex, stream: SampleStream, out) -> Directions:
     ok = y > 0.0
     ok &= vertex.sgn != 0.0
     y *= vertex.sgn
-    weight = vertex.albedo * ok
+    weight = np.multiply(vertex.albedo, ok, out=vertex.albedo if vertex.albedo.flags.owndata else None)
     return Directions(_to_world(vertex.frame, x, y, z, out), weight, pdf, None)
 
 

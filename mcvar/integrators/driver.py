@@ -110,12 +110,10 @@ class WorkerPool(Executor):
             executor.shutdown(wait=wait, cancel_futures=cancel_futures)
 
 
-
-
 # ---------------------------------------------------------------------------
 # Batches
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Batch:
     """One batch, picklable: what crosses to the process that runs it (the
     tracer included: built once per render, ~20 kB for the Cornell box)."""
@@ -238,7 +236,7 @@ class _RunOptions:
         return cls(**{f.name: given.pop(f.name) for f in fields(cls) if f.name in given})
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Plan:
     """A checked render request."""
 

@@ -183,6 +183,7 @@ def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings):
         _trace_general(tr, o, d)
     return np.ascontiguousarray(tr.radiance.T), tr.rays
 
+
 def _trace_general(tr: Transport, o, d) -> None:
     """The general wavefront loop (any material); see :func:`trace_paths`."""
     tracer, tables, stream = tr.tracer, tr.tables, tr.stream
