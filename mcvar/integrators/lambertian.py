@@ -88,8 +88,10 @@ def trace_lambertian(tr: Transport, o, d) -> None:
         # d is not needed any more: the new directions are written into it
         dirs = sample_directions(Vertex(k, state.idx, frame=(fs, fn, ft), sgn=sgn,
                                         albedo=np.take(lt.albedo, prim, axis=1)), stream, out=state.d)
-        state.beta[...] *= dirs.weight
+        beta = state.beta
+        beta *= dirs.weight                # in place (``state.beta[...] *=`` would copy the block onto itself)
         pdf = dirs.pdf
+        del dirs                           # free the weights now (allocator reuse)
         alive = roulette(tr, state, k, np.ones(m, dtype=bool))
         # leave on wi's side of the surface: sign(wi . n_g) = sgn for a valid sample
         np.multiply(fn, sgn * tr.eps, out=state.o)

@@ -237,6 +237,7 @@ def _trace_general(tr: Transport, o, d) -> None:
         dirs = sample_directions(vertex, stream)
         state.beta[...] *= dirs.weight
         wi, pdf = dirs.wi, dirs.pdf
+        del dirs                           # free the weights now (allocator reuse)
         keep_all = not last or tables.hidden_emitters
         alive = roulette(tr, state, k, np.ones(m, dtype=bool) if keep_all else np.isinf(pdf))
         side = np.sign(dot(wi, ng))
