@@ -51,10 +51,11 @@ class Vertex:
     sgn : ndarray (m,) or None
         Lambertian kernel: ``sign(wo . n)`` (the frame's normal is not flipped;
         0 where ``wo`` grazes the surface).
-    albedo : ndarray (3, m) or None
-        Lambertian kernel: each point's albedo (its presence selects the
-        written-out cosine sampling; an array the vertex owns is reused for
-        the weights).
+    albedo : ndarray (3, T) or None
+        Lambertian kernel: the albedo of every triangle (its presence selects
+        the written-out cosine sampling), looked up at ``prim``.
+    prim : ndarray of int (m,) or None
+        Lambertian kernel: the triangle each point lies on.
     """
 
     k: int
@@ -65,6 +66,7 @@ class Vertex:
     materials: tuple | None = None
     sgn: np.ndarray | None = None
     albedo: np.ndarray | None = None
+    prim: np.ndarray | None = None
 
 
 @dataclass
@@ -140,8 +142,11 @@ def _cosine(vertex: Vertex, stream: SampleStream, out) -> Directions:
     ok = y > 0.0
     ok &= vertex.sgn != 0.0
     y *= vertex.sgn
-    weight = np.multiply(vertex.albedo, ok, out=vertex.albedo if vertex.albedo.flags.owndata else None)
-    return Directions(_to_world(vertex.frame, x, y, z, out), weight, pdf, None)
+    wi = _to_world(vertex.frame, x, y, z, out)
+    del x, y, z
+    weight = np.take(vertex.albedo, vertex.prim, axis=1)
+    weight *= ok
+    return Directions(wi, weight, pdf, None)
 
 
 def _to_world(frame, x, y, z, out):

@@ -86,8 +86,8 @@ def trace_lambertian(tr: Transport, o, d) -> None:
         if k + 1 > tr.limit or (k + 1 == tr.limit and not tr.bsdf_hits):
             break
         # d is not needed any more: the new directions are written into it
-        dirs = sample_directions(Vertex(k, state.idx, frame=(fs, fn, ft), sgn=sgn,
-                                        albedo=np.take(lt.albedo, prim, axis=1)), stream, out=state.d)
+        dirs = sample_directions(Vertex(k, state.idx, frame=(fs, fn, ft), sgn=sgn, albedo=lt.albedo, prim=prim),
+                                 stream, out=state.d)
         beta = state.beta
         beta *= dirs.weight                # in place (``state.beta[...] *=`` would copy the block onto itself)
         pdf = dirs.pdf
