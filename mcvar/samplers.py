@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import qmc
 
-from ._validation import as_points, as_rng, check_choice, check_count, check_positive
+from ._validation import MEMORY_BUDGET, as_points, as_rng, check_choice, check_count, check_positive
 
 __all__ = [
     "Sampler",
@@ -65,7 +65,7 @@ _FRACTION_BITS = 52  # digital shifts act on the first 52 binary digits
 #: much before anything is allocated, instead of dying in a ``MemoryError``
 #: deep inside NumPy. Override it for the session, e.g.
 #: ``mcvar.samplers.MAX_BYTES = 16 * 2**30`` (docs/conventions.md, 'Memory').
-MAX_BYTES = 4 * 2 ** 30
+MAX_BYTES = MEMORY_BUDGET
 
 # Peak working memory of pixel_samples, in 8-byte words per output coordinate
 # (measured at most 7.0, see Sampler.words_per_coord for the generators').

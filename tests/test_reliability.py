@@ -388,8 +388,6 @@ def test_sweep_and_chart_name_their_arguments(monkeypatch):
         sweep("hemisphere", spp=[4], replicates=3, workers=1, progress="no")
 
 
-@pytest.mark.xfail(reason="render's checks live in driver.py, which helper drv rewrites in this round "
-                          "(issue 24 lists them; remove this mark once the merged driver passes)", strict=False)
 def test_render_names_sampler_dim_and_executor(cornell):
     with pytest.raises(ValueError, match="sampler_dim"):
         render(cornell, spp=1, res=4, sampler="sobol", sampler_dim=HUGE)

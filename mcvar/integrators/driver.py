@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_rng, check_choice, check_count
+from .._validation import MEMORY_BUDGET, as_rng, check_choice, check_count
 from ..samplers import SAMPLERS
 from ..scene import Scene
 from ..tracer import Tracer
@@ -39,8 +39,9 @@ __all__ = ["render", "WorkerPool", "PATHS_PER_BATCH", "MAX_RENDER_BYTES", "BYTES
 
 #: Default memory budget of one render (bytes): :func:`render` refuses a render
 #: whose :func:`estimate_render_bytes` exceeds it, before allocating anything
-#: (``render(..., max_memory=...)`` overrides it).
-MAX_RENDER_BYTES = 4 * 2 ** 30
+#: (``render(..., max_memory=...)`` overrides it). The same number as every other
+#: size check's, :data:`mcvar._validation.MEMORY_BUDGET` (4 GiB).
+MAX_RENDER_BYTES = MEMORY_BUDGET
 #: Working memory per path of a batch in flight (state, temporaries, shadow
 #: rays, sample stream), bytes: an upper estimate. Measured (tracemalloc peak
 #: of one 2^16-path Cornell batch, film included): 400 B/path for the
@@ -186,7 +187,11 @@ def _in_order(batches, executor, parent_works: bool):
                 batch = next(source, None)
                 if batch is None:
                     break
-                pending.append([batch, executor.submit(_run_batch, batch), None])
+                future = executor.submit(_run_batch, batch)
+                if not all(callable(getattr(future, a, None)) for a in ("result", "done", "cancel")):
+                    raise TypeError(f"executor.submit must return a concurrent.futures.Future (result, done, "
+                                    f"cancel); {type(executor).__name__}.submit returned {type(future).__name__}")
+                pending.append([batch, future, None])
             if not pending:
                 return
             head = pending[0]
@@ -324,10 +329,15 @@ def _plan(scene, method, spp, res, sampler, allocation, keywords: dict):
     need = estimate_render_bytes(plan.n_pixels, mem["batch_paths"], 0 if sampler == "random" else dim,
                                  run.workers if run.executor is None else 1, mem["whole_floats"], mem["films"])
     if need > budget:
+        # name the option that asks for the memory: the sample stream's columns when they alone
+        # exceed the budget (sampler_dim=2**40), else the image and its batches
+        columns = 8 * dim * mem["batch_paths"] * (run.workers if run.executor is None else 1)
+        cause = (f"sampler_dim = {run.sampler_dim} ({dim} sample columns per path)"
+                 if run.sampler_dim is not None and columns > budget else "lower res or batch_spp")
         raise ValueError(f"render of {size[0]} x {size[1]} pixels ({allocation.name} allocation, "
                          f"{mem['batch_paths']} paths per batch) needs about {need / 2 ** 30:.3g} GiB (film and "
-                         f"batch memory), more than max_memory = {budget / 2 ** 30:.3g} GiB; lower res or "
-                         "batch_spp, or raise max_memory")
+                         f"batch memory), more than max_memory = {budget / 2 ** 30:.3g} GiB; "
+                         + (f"lower {cause}" if cause.startswith("sampler_dim") else cause) + ", or raise max_memory")
     if method.check_scene is not None:
         method.check_scene(scene, opts)
     return plan, allocation
