@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import qmc
 
-from ._validation import MEMORY_BUDGET, as_points, as_rng, check_choice, check_count, check_positive
+from ._validation import MEMORY_BUDGET, as_points, as_rng, check_bool, check_choice, check_count, check_positive
 
 __all__ = [
     "Sampler",
@@ -403,6 +403,7 @@ def hammersley(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarr
            [0.5 , 0.25],
            [0.75, 0.75]])
     """
+    scramble = check_bool(scramble, "scramble")
     d = _check_dim(dim)
     n = _count(n, d, "hammersley")
     if n == 0:
@@ -443,6 +444,7 @@ def halton(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarray:
     J. H. Halton, "On the efficiency of certain quasi-random sequences of
     points in evaluating multi-dimensional integrals", Numer. Math. 2, 1960.
     """
+    scramble = check_bool(scramble, "scramble")
     d = _check_dim(dim)
     n = _count(n, d, "halton")
     if n == 0:
@@ -492,6 +494,7 @@ def sobol(n, *, rng=None, dim: int = 2, scramble: bool = True) -> np.ndarray:
     J. Matousek, "On the L2-discrepancy for anchored boxes", J. Complexity
     14(4), 1998.
     """
+    scramble = check_bool(scramble, "scramble")
     d = _check_dim(dim)
     n = _count(n, d, "sobol")
     if n == 0:
@@ -739,6 +742,7 @@ def multi_jittered(n, *, rng=None, correlated: bool = False) -> np.ndarray:
     A. Kensler, "Correlated multi-jittered sampling", Pixar Technical Memo
     13-01, 2013.
     """
+    correlated = check_bool(correlated, "correlated")
     if not isinstance(correlated, (bool, np.bool_)):
         raise TypeError(f"correlated must be a bool; got {type(correlated).__name__}")
     n = _count(n, 2, "multi_jittered")

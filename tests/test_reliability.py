@@ -577,3 +577,11 @@ def test_found_by_the_fuzzer(cornell, no_tracing):
         PiecewiseConstant1D([1.0, 1e300], 0.0, 1e308)
     with pytest.raises(ValueError, match="func and domain give a cell whose pdf"):
         PiecewiseConstant2D([[1e-300, 1.0], [1.0, 1e300]], ((0.0, 1e150), (0.0, 1e150)))
+
+
+@pytest.mark.parametrize("fn, option", [("sobol", "scramble"), ("halton", "scramble"), ("hammersley", "scramble"),
+                                        ("multi_jittered", "correlated")])
+def test_sampler_booleans_are_booleans(fn, option):
+    from mcvar import samplers
+    with pytest.raises(TypeError, match=f"{option} must be a bool"):
+        getattr(samplers, fn)(16, **{option: "no"})
