@@ -49,8 +49,12 @@ def _supported(method, scene, **options):
 
 
 def _mean_and_tol(method, scene, *, spp, res, seed, **kw):
-    """Image mean (3,) and its tolerance (Sidak-corrected multiple of its standard error)."""
-    if method.kind in ("camera", "first_hit"):
+    """Image mean (3,) and its tolerance (Sidak-corrected multiple of its standard error).
+
+    A method with a ``prepare`` step (a photon map, a radiosity solve) shares that
+    random state between all the samples of a render, so the per-sample variance
+    misses its error: its standard error comes from R independent renders."""
+    if method.kind in ("camera", "first_hit") and method.prepare is None:
         r = render(scene, integrator=method.name, spp=spp, res=res, rng=seed, **kw)
         n_pix = r.image.shape[0] * r.image.shape[1]
         se = np.sqrt(r.variance.sum(axis=(0, 1)) / r.spp) / n_pix

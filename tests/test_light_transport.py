@@ -453,7 +453,7 @@ def test_cli_strategies_writes_the_grid_and_images_that_sum_to_the_render(tmp_pa
 
 
 @pytest.mark.parametrize("argv,message", [
-    (["cornell", "--integrator", "path"], "needs --integrator bdpt"),
+    (["cornell", "--integrator", "path"], "needs --method bdpt"),
     (["cornell", "--integrator", "bdpt", "--max-depth", "0"], "max_depth must be >= 1"),
 ])
 def test_cli_strategies_bad_input(tmp_path, capsys, argv, message):

@@ -75,6 +75,13 @@ PLAN = {
     ("sphere-sparse-env", "direct"): (256, 16),
     ("sphere-sparse-env", "direct_light"): (256, 16),
     ("sphere-sparse-env", "bdpt"): (32, 16),
+    # the light found only by BSDF sampling: at 16 x 64 the skewness test flags the blocks
+    # below the light for some seeds (p 9e-6 with the driver's seeds of issue 20)
+    ("cornell", "path_bsdf"): (256, 16),
+    ("cornell", "direct_bsdf"): (256, 16),
+    # the caustic the mirror sphere throws on the red wall (issue 26, section 2): at 16 x 64
+    # skewness p 1e-5 and max block |t| 7; the issue measured agreement from 512 spp
+    ("cornell-spheres", "path"): (512, 16),
 }
 
 #: (scene, method) pairs not compared on that scene, and why: the method
