@@ -162,21 +162,29 @@ def build_bvh(triangles, *, leaf_size: int = LEAF_SIZE, bins: int = SAH_BINS) ->
         off = np.cumsum(a_c) - a_c
         cmin = _segment_reduce(np.minimum, cen, off, a_c, np.inf)
         cmax = _segment_reduce(np.maximum, cen, off, a_c, -np.inf)
+        # no more planes than a level's typical node has triangles (deep levels
+        # hold many small nodes; 12 bins for 6 triangles only cost memory traffic)
+        nb = int(min(bins, max(4, np.median(a_c))))
         ext = cmax - cmin
         with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where(ext > 0, bins / ext, 0.0)
-        b = np.minimum(((cen - cmin[seg]) * scale[seg]).astype(np.int64), bins - 1)   # (m, 3)
+            scale = np.where(ext > 0, nb / ext, 0.0)
+        b = np.minimum(((cen - cmin[seg]) * scale[seg]).astype(np.int64), nb - 1)   # (m, 3)
         k = a_idx.size
-        cost = np.full((k, 3, bins - 1), np.inf)
+        cost = np.full((k, 3, nb - 1), np.inf)
         tlo_i, thi_i = t_lo[ids], t_hi[ids]
         for ax in range(3):
-            key = seg * bins + b[:, ax]
-            cnt = np.bincount(key, minlength=k * bins).reshape(k, bins)
-            blo = np.full((k * bins, 3), np.inf)
-            bhi = np.full((k * bins, 3), -np.inf)
-            np.minimum.at(blo, key, tlo_i)
-            np.maximum.at(bhi, key, thi_i)
-            blo, bhi = blo.reshape(k, bins, 3), bhi.reshape(k, bins, 3)
+            key = seg * nb + b[:, ax]
+            cnt = np.bincount(key, minlength=k * nb)
+            # bin boxes: sort by bin (runs are already sorted by node, so the
+            # stable sort is near linear), then one reduceat per bound
+            perm = np.argsort(key, kind="stable")
+            nz = np.flatnonzero(cnt)
+            first = (np.cumsum(cnt) - cnt)[nz]
+            blo = np.full((k * nb, 3), np.inf)
+            bhi = np.full((k * nb, 3), -np.inf)
+            blo[nz] = np.minimum.reduceat(tlo_i[perm], first, axis=0)
+            bhi[nz] = np.maximum.reduceat(thi_i[perm], first, axis=0)
+            blo, bhi, cnt = blo.reshape(k, nb, 3), bhi.reshape(k, nb, 3), cnt.reshape(k, nb)
             n_l = np.cumsum(cnt, axis=1)[:, :-1]
             a_l = _half_area(np.minimum.accumulate(blo, axis=1), np.maximum.accumulate(bhi, axis=1))[:, :-1]
             r_lo = np.minimum.accumulate(blo[:, ::-1], axis=1)[:, ::-1]
@@ -189,7 +197,7 @@ def build_bvh(triangles, *, leaf_size: int = LEAF_SIZE, bins: int = SAH_BINS) ->
         flat = cost.reshape(k, -1)
         best = np.argmin(flat, axis=1)
         ok = np.isfinite(flat[np.arange(k), best])
-        axis, plane = best // (bins - 1), best % (bins - 1)
+        axis, plane = best // (nb - 1), best % (nb - 1)
         right = b[np.arange(seg.size), axis[seg]] > plane[seg]
         # no usable plane (all centroids in one bin): split the run in half
         rank = np.arange(seg.size) - off[seg]
