@@ -71,13 +71,16 @@ class BVH:
 
     @property
     def sibling_boxes(self) -> np.ndarray:
-        """Boxes of the children pairs ``(N // 2, 2, 2, 3)``: row ``p`` holds nodes ``2p + 1`` and ``2p + 2``."""
+        """Boxes of the children pairs as structure of arrays ``(12, N // 2)``:
+        column ``p`` holds nodes ``2p + 1`` and ``2p + 2`` as (child, lo/hi, axis)."""
         return self._siblings
 
     def __post_init__(self):
         boxes = np.ascontiguousarray(np.stack([self.lo, self.hi], axis=1))
         object.__setattr__(self, "_boxes", boxes)
-        object.__setattr__(self, "_siblings", np.ascontiguousarray(boxes[1:].reshape(-1, 2, 2, 3)))
+        # gathers along the last axis of a (12, P) array are ~3x faster than
+        # gathering (P, 12) rows and transposing them (measured)
+        object.__setattr__(self, "_siblings", np.ascontiguousarray(boxes[1:].reshape(-1, 12).T))
 
     @property
     def n_nodes(self) -> int:
@@ -230,10 +233,10 @@ def build_bvh(triangles, *, leaf_size: int = LEAF_SIZE, bins: int = SAH_BINS) ->
 
 
 def triangle_maps(triangles, dtype=np.float32) -> np.ndarray:
-    """Per-triangle affine maps ``(T, 21)`` of the ray test (Baldwin and Weber 2016).
+    """Per-triangle affine maps ``(21, T)`` of the ray test (Baldwin and Weber 2016).
 
-    Columns 0-11: the 3x4 map of homogeneous origins, rows ``(b1, b2, -h)``;
-    columns 12-20: the 3x3 map of directions, rows ``(b1, b2, h)``. A ray
+    Rows 0-11: the 3x4 map of homogeneous origins, rows ``(b1, b2, -h)``;
+    rows 12-20: the 3x3 map of directions, rows ``(b1, b2, h)``. A ray
     ``o + t d`` meets the plane at ``t = (-h_o) / h_d`` and the triangle
     where ``b1, b2 >= 0`` and ``b1 + b2 <= 1`` at that ``t``.
     """
@@ -243,21 +246,18 @@ def triangle_maps(triangles, dtype=np.float32) -> np.ndarray:
     off = -np.einsum("tij,tj->ti", inv, v0)
     mo = np.concatenate([inv, off[:, :, None]], axis=2)                      # (T, 3, 4)
     mo[:, 2] *= -1.0
-    return np.ascontiguousarray(np.concatenate([mo.reshape(-1, 12), inv.reshape(-1, 9)], axis=1), dtype)
+    return np.ascontiguousarray(np.concatenate([mo.reshape(-1, 12), inv.reshape(-1, 9)], axis=1).T, dtype)
 
 
 def _pair_t(maps, tri, o, d, eps):
-    """Distances of rays (3, m) to triangles ``tri`` (m,), inf where missed."""
-    m = np.take(maps, tri, axis=0)                                          # (m, 21)
+    """Distances of rays (3, m) to triangles ``tri`` (m,), inf where missed; ``maps`` (21, T)."""
+    m = np.take(maps, tri, axis=1)                                          # (21, m)
     ox, oy, oz = o
     dx, dy, dz = d
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (m[:, 8] * ox + m[:, 9] * oy + m[:, 10] * oz + m[:, 11]) / (m[:, 18] * dx + m[:, 19] * dy
-                                                                          + m[:, 20] * dz)
-        b1 = m[:, 0] * ox + m[:, 1] * oy + m[:, 2] * oz + m[:, 3] + t * (m[:, 12] * dx + m[:, 13] * dy
-                                                                         + m[:, 14] * dz)
-        b2 = m[:, 4] * ox + m[:, 5] * oy + m[:, 6] * oz + m[:, 7] + t * (m[:, 15] * dx + m[:, 16] * dy
-                                                                         + m[:, 17] * dz)
+        t = (m[8] * ox + m[9] * oy + m[10] * oz + m[11]) / (m[18] * dx + m[19] * dy + m[20] * dz)
+        b1 = m[0] * ox + m[1] * oy + m[2] * oz + m[3] + t * (m[12] * dx + m[13] * dy + m[14] * dz)
+        b2 = m[4] * ox + m[5] * oy + m[6] * oz + m[7] + t * (m[15] * dx + m[16] * dy + m[17] * dz)
     ok = (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (t > eps)
     return np.where(ok, t, np.inf)
 
@@ -301,7 +301,7 @@ def _traverse(bvh, maps, o, d, tmax, eps, any_hit):
     n = o.shape[1]
     with np.errstate(divide="ignore"):
         inv_d = 1.0 / d
-    rays = np.ascontiguousarray(np.concatenate([o, inv_d]).T)              # (n, 6): origin, 1/direction
+    rays = np.concatenate([o, inv_d])                                       # (6, n): origin, 1/direction
     best = np.array(tmax, dtype=d.dtype, copy=True)
     prim = np.full(n, -1, np.int64)
     occ = np.zeros(n, bool)
@@ -328,9 +328,8 @@ def _traverse(bvh, maps, o, d, tmax, eps, any_hit):
             live = ~np.take(occ, ray)
             ray, ch = ray[live], ch[live]
         m = ray.size
-        rd = np.ascontiguousarray(np.take(rays, ray, axis=0).T)                # (6, m)
-        box = np.take(bvh.sibling_boxes, (ch - 1) >> 1, axis=0).reshape(m, 12)
-        box = np.ascontiguousarray(box.T).reshape(2, 2, 3, m)                  # child, lo/hi, axis, pair
+        rd = np.take(rays, ray, axis=1)                                         # (6, m)
+        box = np.take(bvh.sibling_boxes, (ch - 1) >> 1, axis=1).reshape(2, 2, 3, m)   # child, lo/hi, axis
         both = _slab(box, rd[:3], rd[3:], np.take(best, ray))                  # (2, m)
         pick = np.flatnonzero(both.ravel())
         ray = np.take(ray, pick % m)
