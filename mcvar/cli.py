@@ -62,6 +62,7 @@ def _cmd_render(args) -> int:
                              f"it needs --integrator bdpt, not {args.integrator!r}")
         options["strategies"] = True
     scene = load_scene(args.scene)
+    _scene_file_defaults(args, scene)
     # estimator options of the path methods, only when asked for (other methods do not take them)
     tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
                                 ("rr_depth", args.rr_depth)) if v is not None}
@@ -89,6 +90,24 @@ def _cmd_render(args) -> int:
         written = write_strategies(args.strategies, strategies_from_extra(result.extra, result.res), result.res)
         print(f"wrote {len(written) - 1} strategy images (s{{s}}_t{{t}}.npy) and {written[-1]}")
     return 0
+
+
+def _scene_file_defaults(args, scene) -> None:
+    """Fill the options the command line left out (None) from what a scene file says
+    (``Scene.render_defaults``: film size, sample count, path depth, roulette depth),
+    else the built-in defaults (64 x 64 pixels, 16 spp)."""
+    from .integrators import METHODS
+
+    given = dict(scene.render_defaults)
+    if args.res is None:
+        args.res = given.get("res", 64)
+    if args.spp is None:
+        args.spp = given.get("spp", 16)
+    if args.max_depth is None and args.integrator in ("path", "path_bsdf", "light", "bdpt"):
+        args.max_depth = given.get("max_depth")
+    method = METHODS.get(args.integrator)
+    if args.rr_depth is None and "rr_depth" in given and method is not None and "rr_depth" in method.options:
+        args.rr_depth = given["rr_depth"]
 
 
 def _adaptive_workers(workers):
@@ -120,8 +139,17 @@ def _cmd_converge(args) -> int:
         target = load_target(args.target_spec)
     else:
         target = args.target
-    paths = convergence_report(target, args.out, methods=args.methods, samplers=args.samplers,
-                               spp=args.spp, replicates=args.replicates, res=args.res,
+    methods, res = args.methods, args.res
+    if args.target_spec is None and target.lower().endswith(".xml"):
+        # a scene file: its film width and path depth unless --res / --methods say otherwise
+        from .scene import load_scene
+
+        given = load_scene(target).render_defaults
+        res = given.get("res", (32, 32))[0] if res is None else res
+        if methods is None and given.get("max_depth") is not None:
+            methods = [f"path:{given['max_depth']}"]
+    paths = convergence_report(target, args.out, methods=methods, samplers=args.samplers,
+                               spp=args.spp, replicates=args.replicates, res=32 if res is None else res,
                                seed=args.seed, workers=args.workers, progress=not args.quiet,
                                reference=args.reference)
     for key, path in paths.items():
@@ -185,9 +213,12 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Render a scene with one integrator and sampler. .npy holds "
                                    "linear radiance (H, W, 3), row 0 at the top; .png is tonemapped "
                                    "to sRGB; .exr is linear. Ctrl-C keeps the spp finished so far.")
-    p.add_argument("scene", help="scene name: cornell, cornell-spheres, checkerboard, furnace, quad-environment")
-    p.add_argument("--res", type=int, default=64, help="image width and height in pixels (default 64)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
+    p.add_argument("scene", help="scene name (cornell, cornell-spheres, checkerboard, furnace, quad-environment, "
+                                 "...) or a Mitsuba 3 scene file FILE.xml (docs/scene-files.md)")
+    p.add_argument("--res", type=int, default=None, help="image width and height in pixels (default 64, or a "
+                                                         "scene file's film)")
+    p.add_argument("--spp", type=int, default=None, help="samples per pixel (default 16, or a scene file's "
+                                                         "sample_count)")
     p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
                                                           "direct_light, direct_bsdf, albedo, normal, depth, raster, "
                                                           "position: any method of mcvar.integrators.METHODS")
@@ -225,7 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(cornell, ...) or an integrand (checkerboard, hemisphere, ...) "
                                    "and write plots, a CSV of every number and a summary page.")
     p.add_argument("target", nargs="?", default=None,
-                   help="scene (cornell, cornell-spheres) or integrand (checkerboard, hemisphere, ...)")
+                   help="scene (cornell, cornell-spheres, or a Mitsuba 3 FILE.xml) or integrand "
+                        "(checkerboard, hemisphere, ...)")
     p.add_argument("--target", dest="target_spec", metavar="MODULE:FUNCTION", default=None,
                    help="your own renderer instead: FUNCTION(method, sampler, spp, rng) -> image in "
                         "MODULE (importable from the current folder); methods from --methods or the "
@@ -241,7 +273,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated spp (or N) levels (default 1,4,16,64 for scenes, "
                         "1,4,...,4096 for integrands)")
     p.add_argument("--replicates", type=int, default=8, help="independent replicates per level (default 8)")
-    p.add_argument("--res", type=int, default=32, help="image resolution for scenes (default 32)")
+    p.add_argument("--res", type=int, default=None, help="image resolution for scenes (default 32, or a scene "
+                                                         "file's film width)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.add_argument("--reference", type=Path, default=None,
@@ -281,13 +314,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What ``main`` reports as a user's error (one line on stderr, exit status 2):
+#: bad values and types (the library's ``ValueError``/``TypeError`` name the
+#: argument), files that cannot be read or written (``OSError``: a missing
+#: file, ``--out`` naming a directory, no permission, a full disk) and a
+#: ``--target`` module that cannot be imported. Anything else (``KeyError``,
+#: ``IndexError``, ``MemoryError`` ...) is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, TypeError, OSError, ImportError)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
-        print(f"mcvar {args.command}: error: {exc}", file=sys.stderr)
+    except USER_ERRORS as exc:
+        print(f"mcvar {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mcvar {args.command}: interrupted", file=sys.stderr)

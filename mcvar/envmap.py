@@ -606,7 +606,7 @@ def sky_with_sun(*, sun_direction=(0.45, 0.8, 0.4), sun_radius_deg: float = 2.0,
     antialiased by sub-pixel coverage, so its power
     ``~ sun_radiance * 2 pi (1 - cos r)`` does not depend on the map size.
     With the defaults the sun delivers about 5x the sky's irradiance to an
-    upward-facing surface from 0.04 % of the sphere.
+    upward-facing surface from 0.030 % of the sphere ((1 - cos 2 deg) / 2).
     """
     height, width = _size(height, width)
     radius = math.radians(check_positive(sun_radius_deg, "sun_radius_deg"))

@@ -43,7 +43,8 @@ from typing import Callable
 
 import numpy as np
 
-from ._validation import as_array, as_rng, check_choice, check_count, check_positive, check_probability
+from ._validation import (as_array, as_rng, check_budget, check_choice, check_count, check_positive,
+                          check_probability)
 from .envmap import LUMINANCE_WEIGHTS
 from .estimators import Estimate
 
@@ -57,6 +58,8 @@ __all__ = [
     "tv_distance",
     "MAX_STORED",
     "SOKAL_C",
+    "BOOTSTRAP_CHUNK",
+    "check_walk_budget",
 ]
 
 #: Largest number of float64 numbers a :class:`Chain` stores for its
@@ -71,6 +74,13 @@ SOKAL_C = 5.0
 
 #: Default number of bootstrap candidates (pbrt-v4's MLT uses 100 000).
 N_BOOTSTRAP = 100_000
+#: Bootstrap candidates evaluated per call of the target (bounds the memory of
+#: what ``f`` or the path tracer allocates for them).
+BOOTSTRAP_CHUNK = 1 << 16
+#: Float64 numbers alive per chain and state dimension during a step (state,
+#: proposal, the Gaussian step, the large-step points and ``np.where``'s copy),
+#: rounded up.
+WORDS_PER_CHAIN_DIM = 8
 
 
 # ---------------------------------------------------------------------------
@@ -335,8 +345,16 @@ class Chain:
 # The sampler
 
 def _evaluate(f, x: np.ndarray) -> np.ndarray:
-    """``f(x)`` checked: shape (m,), finite, >= 0."""
-    v = np.asarray(f(x), dtype=np.float64)
+    """``f(x)`` checked: real numbers, shape (m,), finite, >= 0."""
+    out = f(x)
+    try:
+        v = np.asarray(out)
+    except (TypeError, ValueError):     # ragged sequences
+        v = np.asarray(out, dtype=object)
+    if v.dtype.kind not in "biuf":
+        raise TypeError(f"f must return real numbers (a non-negative density, shape ({x.shape[0]},)); "
+                        f"got {type(out).__name__} of dtype {v.dtype}")
+    v = v.astype(np.float64)
     if v.shape != (x.shape[0],):
         raise ValueError(f"f must return shape ({x.shape[0]},) for points of shape {x.shape}; got {v.shape}")
     if not np.all(np.isfinite(v) & (v >= 0.0)):
@@ -345,10 +363,56 @@ def _evaluate(f, x: np.ndarray) -> np.ndarray:
     return v
 
 
+def _evaluate_chunked(evaluate, cand: np.ndarray, chunk: int | None = None):
+    """``evaluate`` over the rows of ``cand`` ``chunk`` (default
+    :data:`BOOTSTRAP_CHUNK`) at a time: the values (n,) and the payloads
+    stacked (or None); one call when they fit."""
+    chunk = BOOTSTRAP_CHUNK if chunk is None else chunk
+    n = cand.shape[0]
+    if n <= chunk:
+        return evaluate(cand)
+    fc = np.empty(n)
+    payload = None
+    for a in range(0, n, chunk):
+        f, p = evaluate(cand[a:a + chunk])
+        fc[a:a + chunk] = f
+        if p is not None:
+            if payload is None:
+                payload = np.empty((n,) + np.shape(p)[1:], dtype=np.asarray(p).dtype)
+            payload[a:a + chunk] = p
+    return fc, payload
+
+
+def check_walk_budget(dim: int, chains: int, n_bootstrap: int | None, n_steps: int = 0, thin: int = 1, *,
+                      payload_words: int = 0, dim_name: str = "dim", dim_value=None) -> None:
+    """The memory a chain run needs, checked against the budget before anything
+    is drawn (:func:`mcvar._validation.check_budget`): the bootstrap's
+    candidates (``n_bootstrap`` rows of ``dim`` numbers, their values and
+    payloads, all kept for the resampling), a step's arrays
+    (:data:`WORDS_PER_CHAIN_DIM` numbers per chain and dimension) and the
+    kept states (every ``thin``-th of ``n_steps`` steps of ``chains`` states).
+    One chain's state is checked first, blaming ``dim_name`` (``'dim'``, or
+    PSSMLT's ``'state_depth'``); ``n_bootstrap=None`` skips the bootstrap."""
+    per_chain = 8.0 * (WORDS_PER_CHAIN_DIM * dim + 4 + payload_words)
+    check_budget(dim_name, dim if dim_value is None else dim_value, per_chain,
+                 what=f"one chain's step in {dim} dimensions")
+    if n_bootstrap is None:
+        n_bootstrap = 0
+    per_candidate = 8.0 * (dim + 1 + payload_words)
+    check_budget("n_bootstrap", n_bootstrap, n_bootstrap * per_candidate, per_unit=per_candidate,
+                 what=f"{n_bootstrap} bootstrap candidates of {dim} numbers, kept for resampling")
+    dim_label = dim if dim_value is None else dim_value
+    check_budget(f"chains={chains!r} with {dim_name}={dim_label!r}", None, chains * per_chain, per_unit=per_chain,
+                 unit_name="chains", what=f"a step of {chains} chains in {dim} dimensions")
+    n_kept = -(-n_steps // thin)
+    check_budget("thin", thin, n_kept * 8.0 * chains * (dim + 2),
+                 what=f"{n_kept} kept steps of {chains} chains in {dim} dimensions; a larger thin keeps fewer")
+
+
 def _bootstrap(evaluate, dim: int, chains: int, n_bootstrap: int, rng):
     """Independent uniform candidates, ``b`` from their mean, chains resampled ``∝ f``."""
     cand = rng.random((n_bootstrap, dim))
-    fc, payload = evaluate(cand)
+    fc, payload = _evaluate_chunked(evaluate, cand)
     total = fc.sum()
     if not total > 0.0:
         raise ValueError(f"f is zero at all {n_bootstrap} bootstrap candidates: cannot start the chains "
@@ -494,6 +558,7 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
     dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(dim, n_steps, chains, sigma, p_large,
                                                                     n_bootstrap)
     thin = _stride(n_steps, chains, dim, thin)
+    check_walk_budget(dim, chains, n_bootstrap, n_steps, thin)
     rng = as_rng(rng)
 
     def evaluate(u):
@@ -573,6 +638,7 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
     dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(2, n_steps, chains, sigma, p_large,
                                                                     n_bootstrap)
     thin = _stride(n_steps, chains, dim, thin)
+    check_walk_budget(dim, chains, n_bootstrap, n_steps, thin, payload_words=1)
     rng = as_rng(rng)
     flat = lum.ravel()
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bvh as _bvh
-from ._validation import as_array, check_count, check_choice
+from ._validation import as_array, check_bool, check_count, check_choice
 
 __all__ = ["Hit", "Tracer", "BVH_MIN_TRIANGLES", "ACCELERATIONS"]
 
@@ -124,7 +124,7 @@ class Tracer:
         self.dtype = np.dtype(dtype)
         self.chunk = check_count(chunk, "chunk")
         self._box_slice = 4 * self.chunk        # rays per call of the slab test
-        self.cull = bool(cull)
+        self.cull = check_bool(cull, "cull")
         check_choice(accel, "accel", ACCELERATIONS)
         self.epsilon = float(scene.ray_epsilon)
         tri = scene.triangles

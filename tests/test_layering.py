@@ -14,11 +14,12 @@ LAYERS = {
     "samplers": 1, "geometry": 1, "metrics": 1, "images": 1,
     "discrepancy": 2, "warps": 2, "optics": 2, "piecewise": 2,
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
-    "examples": 4,
     "bvh": 3,
+    "scenefile": 3.5,
+    "examples": 4, "lab_renderer": 4,
     "scene": 4, "tracer": 4, "tessellate": 4,
     "mcmc": 4,
-    "integrators": 5,
+    "integrators": 5, "interop": 5,
     "experiments": 6, "adaptive": 6,
     "plotting": 7, "report": 7, "sampler_report": 7, "chart_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
@@ -31,7 +32,9 @@ LAYERS = {
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
     "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
-    "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
+    "testing": ["_domains", "_chi2", "checks", "mutants", "bugs", "grade", "exercises", "__init__"],
+    "scenefile": ["xml", "mesh", "props", "lights", "build", "write", "__init__"],
+    "interop": ["mitsuba", "__init__"],
     "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "light", "bdpt", "pssmlt", "radiosity", "photon", "sppm", "driver", "__init__"],
 }
 
@@ -98,6 +101,13 @@ def _imports(path):
             yield target.split(".")[1]
 
 
+# The one import against the layers: mcvar.scene.save_scene writes a Scene through
+# the exporter of mcvar.interop.mitsuba (issue 23: one mapping from Scene to
+# Mitsuba, not two), which itself needs mcvar.scene; it is imported inside the
+# function, when called.
+UPWARD = {("scene", "interop")}
+
+
 @pytest.mark.parametrize("path,top", list(_modules()), ids=lambda v: str(v))
 def test_module_imports_only_lower_layers(path, top):
     assert top in LAYERS, f"{top} has no layer: add it to LAYERS and docs/conventions.md"
@@ -106,7 +116,7 @@ def test_module_imports_only_lower_layers(path, top):
         if target == "matplotlib":
             assert own == 7, f"{path.name} imports matplotlib outside layer 7"
             continue
-        if target == top or target not in LAYERS:
+        if target == top or target not in LAYERS or (top, target) in UPWARD:
             continue
         allowed = LAYERS[target] < own or (own == 7 and LAYERS[target] == 7)
         assert allowed, f"{path.name} (layer {own}) imports {target} (layer {LAYERS[target]})"

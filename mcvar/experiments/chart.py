@@ -50,7 +50,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import check_count
+from .._validation import check_bool, check_count
 from .targets import Target, _check_reference_settings, _scene
 from .runs import SerialExecutor
 from .reference import compute_reference
@@ -475,6 +475,9 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
        Simulation", PhD thesis, Stanford University, 1997, sec. 1.4.4, 2.4.3.
     """
+    seed = check_count(seed, "seed", allow_zero=True)
+    check_bool(quick, "quick")
+    check_bool(progress, "progress")
     settings = dict(QUICK if quick else DEFAULT)
     for name, value in (("res", res), ("replicates", replicates), ("reference_spp", reference_spp),
                         ("reference_chunks", reference_chunks)):

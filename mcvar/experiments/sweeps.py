@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_count, check_probability
-from .targets import make_target
+from .._validation import check_bool, check_count, check_probability
+from .targets import make_target, parse_method
 from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, run_seed
 from .reference import Reference, compute_reference
 from .denoising import DENOISE_SUFFIX, denoised_target
@@ -91,6 +91,26 @@ def _as_names(names, what: str) -> tuple:
     if not names or not all(isinstance(n, str) for n in names):
         raise ValueError(f"{what} must be a non-empty sequence of strings; got {names!r}")
     return tuple(dict.fromkeys(names))
+
+
+def _check_methods(target, methods) -> None:
+    """Every method name is one the target can run (a ValueError naming the
+    unknown ones and the known ones, before any run): an integrand's own
+    methods, a scene's registered integrators (``'integrator[:max_depth]'``,
+    optionally denoised); a user target's names are its own business."""
+    plain = [m[:-len(DENOISE_SUFFIX)] if m.endswith(DENOISE_SUFFIX) else m for m in methods]
+    if target.key.startswith("integrand="):
+        unknown = [m for m, p in zip(methods, plain) if p not in target.methods]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not methods of the integrand {target.name!r}; "
+                             f"it has {tuple(target.methods)}")
+    elif target.key.startswith("scene="):
+        from ..integrators import METHODS
+
+        unknown = [m for m, p in zip(methods, plain) if parse_method(p)[0] not in METHODS]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not registered integrators; methods are "
+                             f"'integrator[:max_depth]' with integrator one of {tuple(METHODS)}")
 
 
 def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8, seed: int = 0,
@@ -186,6 +206,9 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
                                    ([methods] if isinstance(methods, str) else methods)):
         target = denoised_target(target)
     methods = _as_names(methods if methods is not None else target.methods, "methods")
+    _check_methods(target, methods)
+    check_bool(progress, "progress")
+    check_bool(image_metrics, "image_metrics")
     samplers = _as_names(samplers if samplers is not None else target.samplers, "samplers")
     levels = _as_levels(spp if spp is not None else target.spp)
     replicates = check_count(replicates, "replicates")

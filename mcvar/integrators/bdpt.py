@@ -9,8 +9,8 @@ The lecture's 'Bidirectional Path Tracing' slides: trace a camera subpath
 * ``s = 0``: the camera subpath hits an emitter (path tracing's BSDF-sampled
   emission);
 * ``s = 1``: a camera vertex joined to the light subpath's origin ``y_0``
-  (next-event estimation; point lights are reached only this way and by
-  ``t = 1``);
+  (next-event estimation; point lights are reached only this way: ``(1,
+  1)``, a point light seen by the camera, is left out as in path tracing);
 * ``s, t >= 2``: ``y_{s-1}`` and ``z_{t-1}`` joined by a shadow ray;
 * ``t = 1``: a light vertex joined to the pinhole and splatted (light
   tracing).
@@ -44,10 +44,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import check_bool
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult, splat
-from .light import (CHUNK_PATHS, RR_MAX_VERTICES, _bsdf_eval, _connect_camera, _Context, _cos, _dot, _unit,
-                    _unoccluded, camera_subpath, check_scene, light_subpath)
+from .light import (CHUNK_PATHS, RR_MAX_VERTICES, _bsdf_eval, _connect_camera, _Context, _cos, _dot, _Only,
+                    _unit, _unoccluded, camera_subpath, check_scene, light_subpath)
 from .registry import Method, register
 
 __all__ = ["STRATEGY_DEPTH", "bdpt_contributions", "strategy_grid", "strategies_from_extra",
@@ -100,10 +101,15 @@ def _mis_weight(ctx, L, C, s, t, il, ic, over):
 
 
 def _connect_emitter(ctx, C, t):
-    """Strategy (s = 0, t): camera vertex ``z_{t-1}`` lies on an emitter."""
+    """Strategy (s = 0, t): camera vertex ``z_{t-1}`` lies on an emitter, or
+    is the environment (the camera ray left the scene)."""
     em = ctx.em
     ic = np.flatnonzero(C.length >= t)
-    ic = ic[np.take(em.prim_select, C.prim[t - 1, ic]) > 0.0]
+    inf = C.infinite[t - 1, ic]
+    if np.any(inf):
+        parts = [_connect_environment(ctx, C, t, ic[inf]), _connect_emitter(ctx, _Only(C, ic[~inf]), t)]
+        return tuple(np.concatenate(a) for a in zip(*parts))
+    ic = ic[(C.prim[t - 1, ic] >= 0) & (np.take(em.prim_select, np.maximum(C.prim[t - 1, ic], 0)) > 0.0)]
     if ic.size == 0:
         return ic, np.zeros((0, 3)), np.zeros(0)
     k = t - 1
@@ -116,6 +122,31 @@ def _connect_emitter(ctx, C, t):
     if k - 1 >= 1:
         over[("C", k - 1)] = em.pdf_dir(prim, pk, wo) * _cos(C.surface[k - 1, ic], C.ng[k - 1, ic], wo) / (r * r)
     return ic, value, _mis_weight(ctx, None, C, 0, t, None, ic, over)
+
+
+def _connect_environment(ctx, C, t, ic):
+    """Strategy (s = 0, t) for camera paths ``ic`` whose vertex ``z_{t-1}`` is
+    the environment: ``beta L(w)``, weighted against the light origin's
+    density ``p_choice p(w)`` at ``z_{t-1}`` and the disk's
+    ``|cos| / (pi r^2)`` at ``z_{t-2}`` (pbrt-v4's infinite-light vertex)."""
+    em, k = ctx.em, t - 1
+    towards = C.ng[k, ic]
+    value = C.beta[k, ic] * em.env.radiance(towards)
+    go = np.flatnonzero(value.max(axis=1) > 0.0)
+    ic, value, towards = ic[go], value[go], towards[go]
+    if ic.size == 0:
+        return ic, value, np.zeros(0)
+    over = {("C", k): em.env_pdf_origin(towards)}
+    if k - 1 >= 1:
+        over[("C", k - 1)] = em.env_pdf_pos * _cos(C.surface[k - 1, ic], C.ng[k - 1, ic], towards)
+    return ic, value, _mis_weight(ctx, None, C, 0, t, None, ic, over)
+
+
+def _escapes(tracer, eps, p, n, towards):
+    """The rays from surface points ``p`` (normals ``n``) along ``towards`` leave the scene."""
+    o = p + n * (eps * np.sign(_dot(n, towards)))[:, None]
+    return ~tracer.occluded_soa(np.ascontiguousarray(o.T), np.ascontiguousarray(towards.T),
+                                np.full(p.shape[0], np.inf))
 
 
 def _connect_inner(ctx, L, C, s, t):
@@ -133,6 +164,9 @@ def _connect_inner(ctx, L, C, s, t):
     pq, nq, sq = L.p[q, idx], L.ng[q, idx], L.surface[q, idx]
     pk, nk = C.p[k, idx], C.ng[k, idx]
     w, dist = _unit(pk - pq)                                  # from y_q to z_k
+    inf = L.infinite[q, idx] if s == 1 else np.zeros(idx.size, dtype=bool)
+    if np.any(inf):      # y_0 at infinity: along -w towards z_k, G = |cos theta_k| (no distance)
+        w[inf], dist[inf] = -nq[inf], 1.0
     d2 = dist * dist
     wo_k, r_k = _unit(C.p[k - 1, idx] - pk)
     f_k, pdf_k_fwd, pdf_k_rev = _bsdf_eval(scene, ctx.flips, C.mat[k, idx], nk, wo_k, -w)
@@ -155,7 +189,12 @@ def _connect_inner(ctx, L, C, s, t):
             pdf_q_rev, wo_q, r_q = pdf_q_rev[go], wo_q[go], r_q[go]
     if idx.size == 0:
         return idx, value, np.zeros(0)
-    vis = _unoccluded(ctx.tracer, ctx.eps, pq, nq, pk, nk)
+    inf = L.infinite[q, idx] if s == 1 else np.zeros(idx.size, dtype=bool)
+    vis = np.zeros(idx.size, dtype=bool)
+    fin = np.flatnonzero(~inf)
+    vis[fin] = _unoccluded(ctx.tracer, ctx.eps, pq[fin], nq[fin], pk[fin], nk[fin])
+    if np.any(inf):
+        vis[inf] = _escapes(ctx.tracer, ctx.eps, pk[inf], nk[inf], nq[inf])
     sel = np.flatnonzero(vis)
     idx, value = idx[sel], value[sel]
     over = {("C", k): pdf_q_fwd[sel] * cos_k[sel] / d2[sel],
@@ -164,8 +203,8 @@ def _connect_inner(ctx, L, C, s, t):
         over[("C", k - 1)] = (pdf_k_rev[sel] * _cos(C.surface[k - 1, idx], C.ng[k - 1, idx], wo_k[sel])
                               / (r_k[sel] ** 2))
     if s >= 2:
-        over[("L", q - 1)] = (pdf_q_rev[sel] * _cos(L.surface[q - 1, idx], L.ng[q - 1, idx], wo_q[sel])
-                              / (r_q[sel] ** 2))
+        r2 = np.where(L.infinite[q - 1, idx], 1.0, r_q[sel] ** 2)       # none to an environment y_0
+        over[("L", q - 1)] = pdf_q_rev[sel] * _cos(L.surface[q - 1, idx], L.ng[q - 1, idx], wo_q[sel]) / r2
     return idx, value, _mis_weight(ctx, L, C, s, t, idx, idx, over)
 
 
@@ -318,6 +357,8 @@ def run_bdpt_batch(job: BatchJob) -> BatchResult:
 
 
 def _check_bdpt(scene, options):
+    check_bool(options["mis"], "mis")
+    check_bool(options["strategies"], "strategies")
     check_scene(scene, options, "bdpt")
 
 

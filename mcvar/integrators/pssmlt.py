@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_rng, check_choice, check_count, check_positive, check_probability
+from .._validation import as_rng, check_bool, check_choice, check_count, check_positive, check_probability
 from ..envmap import LUMINANCE_WEIGHTS
-from ..mcmc import _walk
+from ..mcmc import _evaluate_chunked, _walk, check_walk_budget
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
@@ -209,8 +209,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
     sigma = check_positive(sigma, "sigma")
     p_large = check_probability(p_large, "p_large")
     check_choice(splat, "splat", ("expected", "plain"))
-    if not isinstance(bootstrap, (bool, np.bool_)):
-        raise TypeError(f"bootstrap must be True or False; got {bootstrap!r}")
+    check_bool(bootstrap, "bootstrap")
     dim = state_dim(state_depth, max_depth)
     n_mut = max(1, int(round(spp * n_pix)))
     chains = min(chains, n_mut)
@@ -218,12 +217,13 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
     if n_bootstrap is None:
         n_bootstrap = max(4 * chains, n_mut // 4)
     n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
+    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth", dim_value=state_depth)
     tracer = tracer if tracer is not None else Tracer(scene)
     counter = [0]
     evaluate = _path_function(scene, res, tracer, max_depth, heuristic, rng, counter)
 
     cand = rng.random((n_bootstrap, dim))
-    fc, pc = evaluate(cand)
+    fc, pc = _evaluate_chunked(evaluate, cand)
     total = fc.sum()
     if not total > 0.0:
         raise ValueError(f"none of the {n_bootstrap} bootstrap paths carries light: cannot start the "
@@ -269,13 +269,17 @@ def run_batch(job: BatchJob) -> BatchResult:
 
 
 def _check_options(scene, options) -> None:
-    check_count(options["chains"], "chains")
+    """``check_scene`` of ``pssmlt``: every option's type and value, and the
+    chains' and a given ``n_bootstrap``'s memory against the budget."""
+    chains = check_count(options["chains"], "chains")
     check_positive(options["sigma"], "sigma")
     check_probability(options["p_large"], "p_large")
     check_choice(options["splat"], "splat", ("expected", "plain"))
-    check_count(options["state_depth"], "state_depth")
-    if options["n_bootstrap"] is not None:
-        check_count(options["n_bootstrap"], "n_bootstrap")
+    check_bool(options["bootstrap"], "bootstrap")
+    dim = state_dim(check_count(options["state_depth"], "state_depth"))
+    n_bootstrap = None if options["n_bootstrap"] is None else check_count(options["n_bootstrap"], "n_bootstrap")
+    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth",
+                      dim_value=options["state_depth"])
 
 
 register(Method("pssmlt", "chain", run_batch,

@@ -27,7 +27,7 @@ from .._validation import as_rng, check_count, check_positive
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
-from .photon import _gather, check_photon_method_scene, check_photon_scene, trace_photons, visible_points
+from .photon import _gather, check_photon_budget, check_photon_method_scene, check_photon_scene, trace_photons, visible_points
 from .registry import Method, register
 from .stream import CAMERA_DIMS, SampleStream
 
@@ -109,8 +109,8 @@ def sppm(scene: Scene, *, res=32, iterations: int = 16, photons_per_iteration: i
     light is blurred by its radius like its indirect light.
     """
     iterations = check_count(iterations, "iterations")
-    photons_per_iteration = check_count(photons_per_iteration, "photons_per_iteration")
-    alpha = float(alpha)
+    photons_per_iteration = check_photon_budget(photons_per_iteration, "photons_per_iteration")
+    alpha = check_positive(alpha, "alpha")
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
     r0 = default_radius(scene) if radius is None else check_positive(radius, "radius")
