@@ -1,0 +1,165 @@
+"""The BVH (mcvar.bvh): its structure, and closest / any-hit answers equal to
+brute force on random rays and scenes; the subdivided Cornell box renders the
+coarse box's image; memory grows linearly with the triangle count."""
+import numpy as np
+import pytest
+
+from mcvar import bvh as B
+from mcvar.integrators import render
+from mcvar.scene import load_scene
+from mcvar.tessellate import subdivide, subdivide_triangle
+from mcvar.tracer import BVH_MIN_TRIANGLES, Tracer
+
+SEED = 20261201
+
+
+def _room_rays(n, rng):
+    o = rng.random((n, 3)) * [540.0, 530.0, 540.0] + [8.0, 8.0, 8.0]
+    d = rng.normal(size=(n, 3))
+    return o, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _soup(n, rng):
+    """Random small triangles in a unit cube, plus a stack of coincident ones
+    (equal centroids: the build's fallback split)."""
+    c = rng.random((n, 1, 3))
+    tri = c + 0.05 * rng.normal(size=(n, 3, 3))
+    same = np.repeat(tri[:1], 40, axis=0) + 1e-9 * rng.random((40, 3, 3))
+    return np.concatenate([tri, same])
+
+
+def test_structure_every_triangle_once_and_boxes_nest():
+    rng = np.random.default_rng(SEED)
+    tri = _soup(3000, rng)
+    b = B.build_bvh(tri, leaf_size=4)
+    leaf = b.child < 0
+    # every triangle in exactly one leaf
+    owned = np.concatenate([b.order[s:s + c] for s, c in zip(b.start[leaf], b.count[leaf])])
+    np.testing.assert_array_equal(np.sort(owned), np.arange(tri.shape[0]))
+    # leaves are small unless their triangles could not be separated at all
+    assert np.all(b.count[leaf] <= 4) or b.depth == 60
+    # a node's box holds its triangles, and its children's boxes
+    for i in range(b.n_nodes):
+        ids = b.order[b.start[i]:b.start[i] + b.count[i]]
+        assert np.all(tri[ids].min(axis=(0, 1)) >= b.lo[i]) and np.all(tri[ids].max(axis=(0, 1)) <= b.hi[i])
+    inner = np.flatnonzero(~leaf)
+    for c in (b.child[inner], b.child[inner] + 1):
+        assert np.all(b.lo[c] >= b.lo[inner]) and np.all(b.hi[c] <= b.hi[inner])
+        # children split the parent's run
+    np.testing.assert_array_equal(b.count[b.child[inner]] + b.count[b.child[inner] + 1], b.count[inner])
+    np.testing.assert_array_equal(b.start[b.child[inner]], b.start[inner])
+
+
+@pytest.mark.parametrize("k", [1, 3, 8])
+def test_closest_hits_equal_brute_force_in_the_subdivided_room(k):
+    rng = np.random.default_rng(SEED + k)
+    scene = subdivide(load_scene("cornell-spheres"), k)
+    o, d = _room_rays(4000, rng)
+    tmax = np.where(rng.random(4000) < 0.3, rng.random(4000) * 300.0, np.inf)
+    for dtype in ("float32", "float64"):
+        ref = Tracer(scene, dtype="float64", accel="groups").intersect(o, d, tmax)
+        hit = Tracer(scene, dtype=dtype, accel="bvh").intersect(o, d, tmax)
+        np.testing.assert_array_equal(hit.prim >= 0, ref.prim >= 0)
+        h = hit.prim >= 0
+        # the documented float32 tolerance of the triangle test (tests/test_tracer.py)
+        np.testing.assert_allclose(hit.t[h], ref.t[h], rtol=2e-4 if dtype == "float32" else 1e-9)
+        same = hit.prim == ref.prim
+        # a different primitive only where two are hit at the same distance (shared edges)
+        assert np.mean(same) > 0.995
+        if dtype == "float64":
+            np.testing.assert_allclose(hit.t[~same & h], ref.t[~same & h], rtol=1e-9)
+
+
+def test_any_hit_equals_closest_hit_before_tmax():
+    rng = np.random.default_rng(SEED + 10)
+    tri = _soup(5000, rng)
+    n = 6000
+    o = rng.random((n, 3)) * 1.4 - 0.2
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    b = B.build_bvh(tri)
+    maps = B.triangle_maps(tri, np.float64)
+    t, prim = B.closest(b, maps, o.T, d.T, np.full(n, np.inf), 1e-6)
+    assert 0.1 < np.mean(prim >= 0) < 0.9
+    tmax = rng.random(n) * 1.5
+    occ = B.occluded(b, maps, o.T, d.T, tmax, 1e-6)
+    np.testing.assert_array_equal(occ, t < tmax)
+    # and both equal the oracle of every ray against every triangle
+    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None], e2[None])
+    det = np.einsum("ntk,tk->nt", p, e1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = o[:, None] - v0[None]
+        b1 = np.einsum("ntk,ntk->nt", s, p) / det
+        q = np.cross(s, e1[None])
+        b2 = np.einsum("nk,ntk->nt", d, q) / det
+        tt = np.einsum("ntk,tk->nt", q, e2) / det
+    ok = (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (tt > 1e-6)
+    t_or = np.where(ok, tt, np.inf).min(axis=1)
+    np.testing.assert_allclose(t, t_or, rtol=1e-9)
+
+
+def test_auto_chooses_the_bvh_above_the_threshold_only():
+    coarse = load_scene("cornell")
+    assert coarse.n_triangles <= BVH_MIN_TRIANGLES
+    assert Tracer(coarse).accel == "groups"
+    assert Tracer(subdivide(coarse, 2)).accel == "bvh"
+    with pytest.raises(ValueError, match="accel"):
+        Tracer(coarse, accel="octree")
+
+
+def test_subdivision_keeps_the_surface():
+    rng = np.random.default_rng(SEED + 3)
+    tri = rng.normal(size=(3, 3))
+    pieces = subdivide_triangle(tri, 5)
+    assert pieces.shape == (25, 3, 3)
+    n0 = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    n = np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0])
+    np.testing.assert_allclose(n.sum(axis=0), n0, rtol=1e-12)          # areas and orientation add up
+    np.testing.assert_allclose(n, np.broadcast_to(n0 / 25, n.shape), rtol=1e-9, atol=1e-12)
+    scene = load_scene("cornell")
+    fine = subdivide(scene, 3)
+    emit = np.any(scene.prim_emission[:scene.n_triangles] > 0, axis=1)
+    assert fine.n_triangles == int(emit.sum() + 9 * (~emit).sum())
+
+
+def test_subdivided_box_renders_the_coarse_image():
+    """Same image in expectation: per-channel image means within 5 standard
+    errors (independent seeds), Sidak over 3 channels is below that margin."""
+    coarse = load_scene("cornell")
+    fine = subdivide(coarse, 4)
+    kw = dict(integrator="path", spp=32, res=16, sampler="random")
+    ra = render(coarse, rng=np.random.default_rng(SEED), **kw)
+    rb = render(fine, rng=np.random.default_rng(SEED + 1), **kw)
+    n = 16 * 16
+    for r in (ra, rb):
+        assert np.all(np.isfinite(r.image))
+    se = np.sqrt(ra.variance.sum(axis=(0, 1)) / n ** 2 + rb.variance.sum(axis=(0, 1)) / n ** 2)
+    z = (ra.image.mean(axis=(0, 1)) - rb.image.mean(axis=(0, 1))) / se
+    assert np.all(np.abs(z) < 5), z
+
+
+def test_memory_grows_linearly_and_100k_triangles_build():
+    import tracemalloc
+    scene = subdivide(load_scene("cornell"), 56)       # 94 082 triangles
+    tracemalloc.start()
+    tr = Tracer(scene)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert tr.accel == "bvh"
+    # the old shadow table needed one byte per (key, triangle): 3 T^2 = 26 GB here
+    assert peak < 2048 * scene.n_triangles, peak
+    rng = np.random.default_rng(SEED + 4)
+    o, d = _room_rays(2000, rng)
+    ref = Tracer(subdivide(load_scene("cornell"), 1), dtype="float64").intersect(o, d)
+    hit = tr.intersect(o, d)
+    np.testing.assert_allclose(hit.t, ref.t, rtol=2e-4)
+
+
+def test_bad_input_is_refused():
+    with pytest.raises(ValueError, match="triangles"):
+        B.build_bvh(np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="leaf_size"):
+        B.build_bvh(np.random.default_rng(0).random((8, 3, 3)), leaf_size=0)
+    with pytest.raises(ValueError, match="k"):
+        subdivide(load_scene("cornell"), 0)
