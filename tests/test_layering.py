@@ -19,7 +19,7 @@ LAYERS = {
     "mcmc": 4,
     "integrators": 5,
     "experiments": 6, "adaptive": 6,
-    "plotting": 7, "report": 7, "sampler_report": 7, "chart_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
+    "plotting": 7, "report": 7, "sampler_report": 7, "chart_report": 7, "compare_report": 7, "cli": 7, "__main__": 7, "__init__": 7,
 }
 
 # The order of the modules inside each package: a module may import only the
@@ -29,7 +29,7 @@ LAYERS = {
 # not been written yet (its test fails once it is a package on disk).
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
-    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
+    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "compare", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "grade", "exercises", "__init__"],
     "integrators": ["registry", "film", "stream", "emitters", "state", "lambertian", "path", "aov", "position", "light", "bdpt", "pssmlt", "radiosity", "photon", "sppm", "driver", "__init__"],
 }
