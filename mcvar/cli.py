@@ -165,7 +165,7 @@ def _cmd_compare(args) -> int:
     from .compare_report import compare_report
 
     paths = compare_report(args.out, scenes=args.scenes, methods=args.methods, seconds=args.seconds, res=args.res,
-                           seeds=args.seeds, seed=args.seed, progress=not args.quiet,
+                           seeds=args.seeds, seed=args.seed, progress=not args.quiet, pairs=args.pairs,
                            command="mcvar " + " ".join(sys.argv[1:]))
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -310,6 +310,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
     p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
     p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    p.add_argument("--pairs", action="store_true",
+                   help="also the lecture's pairs at equal time (path / path_bsdf / light at the point light, "
+                        "path / pssmlt on cornell-door, path / sppm on cornell-spheres' caustic) and radiosity's "
+                        "second view from one solve: pairs.csv, radiosity_views.csv")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder (default out/compare)")
     p.set_defaults(func=_cmd_compare)
     return parser

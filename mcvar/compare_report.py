@@ -25,11 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .experiments.compare import CompareResult, measure_compare
+from .experiments.compare import PAIRS, CompareResult, measure_compare, measure_pairs, radiosity_views
 from .plotting import plt, save_figure
 from .report import _CSS, _PRINT_JS, _csv, _details, _fmt, _img, _table, _tonemap
 
-__all__ = ["compare_report", "write_compare", "plot_matrix", "compare_section"]
+__all__ = ["compare_report", "write_compare", "plot_matrix", "compare_section", "pair_rows", "pairs_section",
+           "VIEW_COLUMNS", "view_rows"]
 
 _WIN = "#2a9d3a"
 
@@ -137,8 +138,53 @@ def _region(result: CompareResult, scene: str) -> str:
     return ""
 
 
-def write_compare(result: CompareResult, out, *, command: str | None = None) -> dict[str, Path]:
-    """Write ``compare.csv``, ``compare_runs.csv``, ``compare.png`` and ``compare.html`` into ``out``."""
+def pair_rows(pairs: dict) -> list[dict]:
+    """Rows of ``pairs.csv``: one per pair and method, the cell's numbers and the lecture's claim."""
+    rows = []
+    for name, result in pairs.items():
+        for row in result.rows():
+            rows.append(dict(pair=name, **row, lecture=PAIRS[name][3]))
+    return rows
+
+
+#: Columns of ``radiosity_views.csv``.
+VIEW_COLUMNS = ("quantity", "value")
+
+
+def view_rows(views: dict) -> list[dict]:
+    """Rows of ``radiosity_views.csv``: the solve, both views and the full render, timed, and the MSEs."""
+    keys = ("solve_seconds", "view1_seconds", "view2_seconds", "full_seconds", "fraction", "mse1", "mse2")
+    return [dict(quantity=k, value=float(views[k])) for k in keys]
+
+
+def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2") -> str:
+    """The slide pairs as an HTML section: per pair the lecture's claim and the measured cells."""
+    parts = [f"<{heading}>The lecture's pairs, at equal time</{heading}>"]
+    for name, result in pairs.items():
+        scene = result.scenes[0] if result.scenes else PAIRS[name][0]
+        rows = [(r["method"], _fmt(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]), _fmt(r["mean_ratio"]),
+                 _fmt(r["efficiency"]), _fmt(r["relative_efficiency"]), r["winner"], r["reason"])
+                for r in result.rows()]
+        region = _region(result, scene) or "whole image"
+        parts.append(f"<h3>{html.escape(name)} ({html.escape(scene)}; MSE over {html.escape(region)})</h3>"
+                     f"<p>The lecture: {html.escape(PAIRS[name][3])}.</p>"
+                     + _table(("method", "spp", "seconds", "MSE", "mean / reference mean", "efficiency",
+                               "relative", "winner", "reason"), rows))
+    if views is not None:
+        parts.append("<h3>radiosity: one solve, two views</h3>"
+                     f"<p>Solve {views['solve_seconds']:.3f} s; view 1 from it {views['view1_seconds']:.3f} s, "
+                     f"view 2 {views['view2_seconds']:.3f} s, against {views['full_seconds']:.3f} s for view 2 "
+                     f"solved from scratch ({100 * views['fraction']:.0f} %). MSE against path-traced "
+                     f"references: view 1 {views['mse1']:.3g}, view 2 {views['mse2']:.3g}.</p>")
+    return "\n".join(parts)
+
+
+def write_compare(result: CompareResult, out, *, command: str | None = None, pairs: dict | None = None,
+                  views: dict | None = None) -> dict[str, Path]:
+    """Write ``compare.csv``, ``compare_runs.csv``, ``compare.png`` and ``compare.html`` into ``out``
+    (and ``pairs.csv``, ``radiosity_views.csv`` with a section of the page when ``pairs`` / ``views``
+    are given: :func:`~mcvar.experiments.compare.measure_pairs`,
+    :func:`~mcvar.experiments.compare.radiosity_views`)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = result.rows()
@@ -149,6 +195,13 @@ def write_compare(result: CompareResult, out, *, command: str | None = None) -> 
     if runs:
         paths["runs"] = _csv(out / "compare_runs.csv", runs)
     paths["png"] = plot_matrix(result, out / "compare.png")
+    extra = []
+    if pairs:
+        paths["pairs"] = _csv(out / "pairs.csv", pair_rows(pairs))
+    if views is not None:
+        paths["views"] = _csv(out / "radiosity_views.csv", view_rows(views))
+    if pairs or views is not None:
+        extra.append(pairs_section(pairs or {}, views))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
     facts = [("scenes", ", ".join(result.scenes)), ("methods", ", ".join(result.methods)),
              ("seconds per method and scene", result.seconds), ("resolution", f"{result.res} x {result.res}"),
@@ -162,6 +215,7 @@ def write_compare(result: CompareResult, out, *, command: str | None = None) -> 
             f"<p class='lead'>{len(result.methods)} methods on {len(result.scenes)} scenes, "
             f"{result.seconds:g} s each, {result.wall_seconds:.0f} s in all.</p>",
             compare_section(result, paths["png"]),
+            *extra,
             _details("Settings", _table(("setting", "value"), facts)),
             "<p class='note'>The numbers are in <code>compare.csv</code> (medians) and "
             "<code>compare_runs.csv</code> (every seed) beside this page.</p>"]
@@ -177,13 +231,16 @@ def write_compare(result: CompareResult, out, *, command: str | None = None) -> 
 
 
 def compare_report(out, *, scenes, methods=None, seconds: float, res: int = 32, seeds: int = 3, seed: int = 0,
-                   progress: bool = True, command: str | None = None, **settings) -> dict[str, Path]:
+                   progress: bool = True, command: str | None = None, pairs: bool = False,
+                   **settings) -> dict[str, Path]:
     """Measure the matrix (:func:`~mcvar.experiments.compare.measure_compare`) and write it into ``out``.
 
     References are cached in ``out/.cache`` (a second run renders none).
     ``settings`` (``references``, ``reference_spp``, ``regions``,
     ``options``) go to :func:`~mcvar.experiments.compare.measure_compare`.
-    Ctrl-C writes the cells finished so far.
+    Ctrl-C writes the cells finished so far. ``pairs=True`` measures the
+    slide pairs too (:func:`~mcvar.experiments.compare.measure_pairs`, the
+    same references) and radiosity's two views of one solve.
 
     Returns
     -------
@@ -201,4 +258,12 @@ def compare_report(out, *, scenes, methods=None, seconds: float, res: int = 32, 
     out.mkdir(parents=True, exist_ok=True)
     result = measure_compare(scenes, methods, seconds=seconds, res=res, seeds=seeds, seed=seed,
                              cache_dir=out / ".cache", progress=progress, **settings)
-    return write_compare(result, out, command=command)
+    measured, views = None, None
+    if pairs and not result.interrupted:
+        try:
+            measured = measure_pairs(seconds=seconds, res=res, seeds=seeds, seed=seed, cache_dir=out / ".cache",
+                                     progress=progress)
+            views = radiosity_views("cornell", res=res, seed=seed, cache_dir=out / ".cache")
+        except KeyboardInterrupt:
+            pass
+    return write_compare(result, out, command=command, pairs=measured, views=views)

@@ -65,7 +65,7 @@ from .._validation import check_count
 __all__ = ["DEFAULT_METHODS", "REFERENCES", "COMPARE_OPTIONS", "PROGRESSIVE", "REUSE_PREPARED",
            "COMPARE_COLUMNS", "RUN_COLUMNS", "SceneReference", "TimedRender", "Cell", "CompareResult",
            "check_compare_args", "scene_reference", "equal_time_render", "measure_compare",
-           "radiosity_views", "compare_scenes", "compare_methods"]
+           "radiosity_views", "compare_scenes", "compare_methods", "CAUSTIC_REGION", "PAIRS", "measure_pairs"]
 
 #: The light-transport methods measured by default (those registered, in this order).
 DEFAULT_METHODS = ("path", "path_bsdf", "direct", "light", "bdpt", "pssmlt", "photon", "sppm", "radiosity")
@@ -618,16 +618,9 @@ def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed
     res = check_count(res, "res")
     sc = load_scene(scene)
     if camera is None:
-        cam = sc.camera
-        eye = np.asarray(cam.position, float)
-        at = np.asarray(cam.look_at, float)
-        forward = at - eye
-        side = np.cross(forward, cam.up)
-        side /= np.linalg.norm(side)
-        dist = np.linalg.norm(forward)
-        # half way to the look-at point, stepped a third of that to the side: a view of a corner
-        eye2 = eye + 0.5 * forward + side * dist / 6 + np.asarray(cam.up, float) / np.linalg.norm(cam.up) * dist / 12
-        camera = Camera(eye2, at + side * dist / 4, cam.up, cam.fov_deg)
+        # from the upper left of the open front, looking down at the right half of the room
+        # (the Cornell camera looks along +z from (278, 273, -800))
+        camera = Camera((120.0, 420.0, -450.0), (330.0, 160.0, 280.0), (0.0, 1.0, 0.0), 45.0)
     sc2 = dataclasses.replace(sc, camera=camera)
     entry = _registered()["radiosity"]
     opts = entry.resolve_options(_options("radiosity", options))
@@ -663,3 +656,45 @@ def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed
                 fraction=view2 / full, mse1=float(np.mean((v1.image - ref1) ** 2)),
                 mse2=float(np.mean((v2.image - ref2) ** 2)), images=(v1.image, v2.image),
                 references=(ref1, ref2), camera=camera)
+
+
+# --------------------------------------------------------------------------
+# the slide pairs that need no new scene
+# --------------------------------------------------------------------------
+
+#: The caustic under ``cornell-spheres``' glass sphere: (row0, row1, col0, col1) fractions of the
+#: image (rows 27-30, columns 18-24 of 32; found where the BDPT reference exceeds depth-2 path tracing).
+CAUSTIC_REGION = (0.84, 0.97, 0.56, 0.78)
+
+#: Slide pairs measured at equal time: name -> (scene, methods, region or None, the lecture's claim).
+PAIRS = {
+    "point light": ("cornell-point", ("path", "path_bsdf", "light"), None,
+                    "a point light is reached only by connecting to it (next-event estimation, light "
+                    "tracing); BSDF sampling alone (path_bsdf) never hits it: black"),
+    "metropolis": ("cornell-door", ("path", "pssmlt"), None,
+                   "Metropolis finds the light through the door and beats path tracing rendered in the "
+                   "same time"),
+    "caustic": ("cornell-spheres", ("path", "sppm"), CAUSTIC_REGION,
+                "photon mapping is for caustics: SPPM beats path tracing on the caustic under the glass "
+                "sphere"),
+}
+
+
+def measure_pairs(*, seconds: float, res: int = 32, seeds: int = 3, seed: int = 0, cache_dir=None,
+                  progress: bool = True, pairs=None) -> dict:
+    """Each slide pair of :data:`PAIRS` at equal time: name -> :class:`CompareResult`.
+
+    The references are those of :func:`measure_compare` (the same cache
+    keys), so pairs measured after the matrix render no new reference.
+    """
+    chosen = tuple(PAIRS) if pairs is None else _names(pairs, "pairs", tuple(PAIRS))
+    out = {}
+    for name in chosen:
+        scene, methods, region, _ = PAIRS[name]
+        methods = [m for m in methods if m in compare_methods()]
+        out[name] = measure_compare([scene], methods, seconds=seconds, res=res, seeds=seeds, seed=seed,
+                                    cache_dir=cache_dir, progress=progress,
+                                    regions={scene: region} if region else None)
+        if out[name].interrupted:
+            break
+    return out
