@@ -215,3 +215,18 @@ def test_cli_help_lists_every_registered_method(capsys):
     assert listed == list(METHODS)
     scenes = compact.split("--scenesSCENEScomma-separatedscenes:")[1].split("(default")[0].split(",")
     assert scenes == list(cmp.compare_scenes())
+
+
+def test_region_mse_is_measured_inside_the_region_only(tmp_path):
+    region = (0.5, 1.0, 0.0, 0.5)   # the lower left quarter
+    result = cmp.measure_compare(["cornell"], ["direct"], seconds=0.05, res=RES, seeds=1, cache_dir=tmp_path,
+                                 progress=False, reference_spp=REF_SPP, regions={"cornell": region})
+    cell, ref = result.cells[("cornell", "direct")], result.references["cornell"].value
+    half = RES // 2
+    crop = (cell.image - ref)[half:, :half]
+    assert cell.runs[0]["mse"] == pytest.approx(np.mean(crop ** 2), rel=1e-12)
+    assert cell.runs[0]["mse"] != pytest.approx(np.mean((cell.image - ref) ** 2), rel=1e-3)
+    assert result.rows()[0]["region"] == "rows 0.50-1.00, columns 0.00-0.50"
+    with pytest.raises(ValueError, match="regions"):
+        cmp.measure_compare(["cornell"], ["direct"], seconds=0.05, res=RES, progress=False,
+                            regions={"cornell": (0.5, 0.2, 0.0, 1.0)})
