@@ -111,9 +111,9 @@ def compare_section(result: CompareResult, png=None, *, heading: str = "h2") -> 
                      [(r["scene"], r["method"], _fmt(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]),
                        _fmt(r["mean_ratio"]), _fmt(r["mse_x_time"]), _fmt(r["efficiency"]),
                        _fmt(r["relative_efficiency"])) for r in result.rows() if not r["reason"]])
-    refs = _table(("scene", "reference method", "spp", "noise (variance of its mean)", "seconds",
+    refs = _table(("scene", "reference method", "spp", "noise (variance of its mean, in the region)", "seconds",
                    "why this method", "region of the MSE"),
-                  [(s, ref.method, ref.spp, _fmt(ref.noise), _fmt(ref.seconds), ref.why,
+                  [(s, ref.method, ref.spp, _fmt(result.reference_noise(s)), _fmt(ref.seconds), ref.why,
                     _region(result, s) or "whole image")
                    for s, ref in result.references.items()])
     parts = [f"<{heading}>Which method wins at equal time</{heading}>",
@@ -153,7 +153,8 @@ VIEW_COLUMNS = ("quantity", "value")
 
 def view_rows(views: dict) -> list[dict]:
     """Rows of ``radiosity_views.csv``: the solve, both views and the full render, timed, and the MSEs."""
-    keys = ("solve_seconds", "view1_seconds", "view2_seconds", "full_seconds", "fraction", "mse1", "mse2")
+    keys = ("solve_seconds", "view1_seconds", "view2_seconds", "full_seconds", "fraction", "mse1",
+            "mse1_off_emitters", "mse2")
     return [dict(quantity=k, value=float(views[k])) for k in keys]
 
 
@@ -162,20 +163,23 @@ def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2"
     parts = [f"<{heading}>The lecture's pairs, at equal time</{heading}>"]
     for name, result in pairs.items():
         scene = result.scenes[0] if result.scenes else PAIRS[name][0]
-        rows = [(r["method"], _fmt(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]), _fmt(r["mean_ratio"]),
+        rows = [(r["method"], _fmt(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]), _fmt(r["reference_noise"]),
+                 _fmt(r["mean_ratio"]),
                  _fmt(r["efficiency"]), _fmt(r["relative_efficiency"]), r["winner"], r["reason"])
                 for r in result.rows()]
         region = _region(result, scene) or "whole image"
         parts.append(f"<h3>{html.escape(name)} ({html.escape(scene)}; MSE over {html.escape(region)})</h3>"
                      f"<p>The lecture: {html.escape(PAIRS[name][3])}.</p>"
-                     + _table(("method", "spp", "seconds", "MSE", "mean / reference mean", "efficiency",
+                     + _table(("method", "spp", "seconds", "MSE", "reference noise", "mean / reference mean",
+                               "efficiency",
                                "relative", "winner", "reason"), rows))
     if views is not None:
         parts.append("<h3>radiosity: one solve, two views</h3>"
                      f"<p>Solve {views['solve_seconds']:.3f} s; view 1 from it {views['view1_seconds']:.3f} s, "
                      f"view 2 {views['view2_seconds']:.3f} s, against {views['full_seconds']:.3f} s for view 2 "
                      f"solved from scratch ({100 * views['fraction']:.0f} %). MSE against path-traced "
-                     f"references: view 1 {views['mse1']:.3g}, view 2 {views['mse2']:.3g}.</p>")
+                     f"references: view 1 {views['mse1']:.3g} ({views['mse1_off_emitters']:.3g} without the pixels "
+                     f"that see the light), view 2 {views['mse2']:.3g}.</p>")
     return "\n".join(parts)
 
 

@@ -98,6 +98,7 @@ def test_reference_noise_is_the_variance_of_the_chunk_mean(tmp_path, monkeypatch
     ref = cmp.scene_reference("cornell", RES, spp=3, chunks=3, cache_dir=tmp_path)
     np.testing.assert_allclose(ref.value, 3.0)
     assert ref.noise == pytest.approx(np.var([1.0, 2.0, 6.0], ddof=1) / 3)
+    np.testing.assert_allclose(ref.variance, np.var([1.0, 2.0, 6.0], ddof=1) / 3)
 
 
 def test_refused_method_gives_its_reason_in_csv_and_html(report):
@@ -227,6 +228,8 @@ def test_region_mse_is_measured_inside_the_region_only(tmp_path):
     assert cell.runs[0]["mse"] == pytest.approx(np.mean(crop ** 2), rel=1e-12)
     assert cell.runs[0]["mse"] != pytest.approx(np.mean((cell.image - ref) ** 2), rel=1e-3)
     assert result.rows()[0]["region"] == "rows 0.50-1.00, columns 0.00-0.50"
+    var = result.references["cornell"].variance
+    assert result.rows()[0]["reference_noise"] == pytest.approx(var[half:, :half].mean(), rel=1e-12)
     with pytest.raises(ValueError, match="regions"):
         cmp.measure_compare(["cornell"], ["direct"], seconds=0.05, res=RES, progress=False,
                             regions={"cornell": (0.5, 0.2, 0.0, 1.0)})

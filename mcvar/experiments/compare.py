@@ -61,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validation import check_count
+from .chart import emitter_pixels
 
 __all__ = ["DEFAULT_METHODS", "REFERENCES", "COMPARE_OPTIONS", "PROGRESSIVE", "REUSE_PREPARED",
            "COMPARE_COLUMNS", "RUN_COLUMNS", "SceneReference", "TimedRender", "Cell", "CompareResult",
@@ -102,12 +103,13 @@ PROGRESSIVE = frozenset({"sppm"})
 REUSE_PREPARED = frozenset({"radiosity"})
 
 #: Columns of ``compare.csv`` (one row per scene x method) and ``compare_runs.csv`` (one row per seed).
-COMPARE_COLUMNS = ("scene", "method", "reference_method", "region", "seeds", "spp", "seconds", "mse",
+COMPARE_COLUMNS = ("scene", "method", "reference_method", "region", "reference_noise", "seeds", "spp",
+                   "seconds", "mse",
                    "mean_ratio", "mse_x_time", "efficiency", "relative_efficiency", "winner", "reason")
 RUN_COLUMNS = ("scene", "method", "seed", "spp", "seconds", "rounds", "max_round_seconds", "mse", "mean_ratio",
                "interrupted")
 
-_CACHE_VERSION = 1
+_CACHE_VERSION = 2
 
 
 def _render(scene, **kwargs):
@@ -190,10 +192,10 @@ class SceneReference:
     """A scene's shared reference image.
 
     ``value`` (H, W, 3) is the mean of ``chunks`` independent renders of
-    ``spp / chunks`` spp by ``method``; ``noise`` the mean over pixels and
-    channels of the variance of that mean (from the chunks' spread), the
-    floor under every MSE measured against it; ``cached`` whether it was read
-    from the cache instead of rendered.
+    ``spp / chunks`` spp by ``method``; ``variance`` (H, W, 3) the variance
+    of that mean per pixel (from the chunks' spread) and ``noise`` its mean
+    over pixels and channels, the floor under every MSE measured against it;
+    ``cached`` whether it was read from the cache instead of rendered.
     """
 
     scene: str
@@ -201,6 +203,7 @@ class SceneReference:
     spp: int
     chunks: int
     value: np.ndarray = field(repr=False)
+    variance: np.ndarray = field(repr=False)
     noise: float
     seconds: float
     why: str
@@ -252,7 +255,8 @@ def scene_reference(scene: str, res: int, *, method: str | None = None, spp: int
         path = Path(cache_dir) / f"reference-{scene}-{key}.npz"
         if path.exists():
             with np.load(path) as data:
-                return SceneReference(scene, method, spp, chunks, data["value"], float(data["noise"]),
+                return SceneReference(scene, method, spp, chunks, data["value"], data["variance"],
+                                      float(data["noise"]),
                                       float(data["seconds"]), why, key, cached=True)
     sc = load_scene(scene)
     per = spp // chunks
@@ -278,13 +282,14 @@ def scene_reference(scene: str, res: int, *, method: str | None = None, spp: int
     seconds = time.perf_counter() - start
     stack = np.stack(images)
     value = stack.mean(axis=0)
-    noise = float((stack.var(axis=0, ddof=1) / chunks).mean()) if chunks > 1 else float("nan")
+    variance = stack.var(axis=0, ddof=1) / chunks if chunks > 1 else np.full_like(value, np.nan)
+    noise = float(variance.mean())
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, value=value, noise=noise, seconds=seconds)
+        np.savez(tmp, value=value, variance=variance, noise=noise, seconds=seconds)
         tmp.replace(path)
-    return SceneReference(scene, method, per * chunks, chunks, value, noise, seconds, why, key)
+    return SceneReference(scene, method, per * chunks, chunks, value, variance, noise, seconds, why, key)
 
 
 # --------------------------------------------------------------------------
@@ -446,6 +451,12 @@ class CompareResult:
             return float("nan")
         return cell.efficiency / self.cells[(scene, w)].efficiency
 
+    def reference_noise(self, scene: str) -> float:
+        """Mean variance of the reference's pixel means inside the scene's region (the MSE floor)."""
+        ref = self.references[scene]
+        rows, cols = _region_slices(self.regions.get(scene), self.res)
+        return float(ref.variance[rows, cols].mean())
+
     def rows(self) -> list[dict]:
         """The rows of ``compare.csv`` (:data:`COMPARE_COLUMNS`), scenes outer, methods inner."""
         out = []
@@ -456,7 +467,8 @@ class CompareResult:
                 if cell is None:
                     continue
                 out.append(dict(scene=s, method=m, reference_method=ref.method if ref else "",
-                                region=_region_text(self.regions.get(s)), seeds=len(cell.runs),
+                                region=_region_text(self.regions.get(s)),
+                                reference_noise=self.reference_noise(s), seeds=len(cell.runs),
                                 spp=cell.spp, seconds=cell.seconds, mse=cell.mse, mean_ratio=cell.mean_ratio,
                                 mse_x_time=cell.mse_x_time if cell.rendered else float("nan"),
                                 efficiency=cell.efficiency if cell.rendered else float("nan"),
@@ -595,7 +607,7 @@ def measure_compare(scenes, methods=None, *, seconds: float, res: int = 32, seed
 # --------------------------------------------------------------------------
 
 def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed: int = 0, camera=None,
-                    options=None, cache_dir=None, reference_spp: int = 1024) -> dict:
+                    options=None, cache_dir=None, reference_spp: int | None = None) -> dict:
     """Radiosity's view independence, timed: one solve, two camera views.
 
     Solves ``scene`` once (``Method.prepare`` of ``radiosity``, low accuracy:
@@ -610,8 +622,11 @@ def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed
     dict
         ``solve_seconds``, ``view1_seconds``, ``view2_seconds``,
         ``full_seconds`` (solve and view 2 from scratch), ``fraction``
-        (view2 / full), ``mse1``, ``mse2``, ``images`` (view 1, view 2),
-        ``references`` (their path-traced references).
+        (view2 / full), ``mse1``, ``mse2``, ``mse1_off_emitters`` (view 1
+        without the pixels that see the light, whose edges dominate at a few
+        spp: :func:`~mcvar.experiments.chart.emitter_pixels`), ``images``
+        (view 1, view 2), ``references`` (their references: the scene's
+        :func:`scene_reference` and path tracing for view 2).
     """
     from ..scene import Camera, load_scene
 
@@ -639,7 +654,8 @@ def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed
     _render(sc2, integrator="radiosity", spp=spp, res=res, rng=_seed_sequence("full", seed),
             **_options("radiosity", options))
     full = time.perf_counter() - t0
-    ref1 = scene_reference(scene, res, method="path", spp=reference_spp, seed=seed, cache_dir=cache_dir).value
+    ref1 = scene_reference(scene, res, spp=reference_spp, seed=seed, cache_dir=cache_dir).value
+    reference_spp = reference_spp or REFERENCES.get(scene, ("path", 4096))[1]
     # the second view's reference is not a named scene: render it here (path tracing, cached by key)
     key = _reference_key(scene + ":view2:" + repr(np.round(camera.position, 6).tolist())
                          + repr(np.round(camera.look_at, 6).tolist()), res, "path", reference_spp, 1, seed, {})
@@ -654,7 +670,9 @@ def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed
             np.save(path, ref2)
     return dict(solve_seconds=solve_seconds, view1_seconds=view1, view2_seconds=view2, full_seconds=full,
                 fraction=view2 / full, mse1=float(np.mean((v1.image - ref1) ** 2)),
-                mse2=float(np.mean((v2.image - ref2) ** 2)), images=(v1.image, v2.image),
+                mse2=float(np.mean((v2.image - ref2) ** 2)),
+                mse1_off_emitters=float(np.mean(((v1.image - ref1) ** 2)[~emitter_pixels(scene, res)])),
+                images=(v1.image, v2.image),
                 references=(ref1, ref2), camera=camera)
 
 
