@@ -233,3 +233,24 @@ def test_region_mse_is_measured_inside_the_region_only(tmp_path):
     with pytest.raises(ValueError, match="regions"):
         cmp.measure_compare(["cornell"], ["direct"], seconds=0.05, res=RES, progress=False,
                             regions={"cornell": (0.5, 0.2, 0.0, 1.0)})
+
+
+def test_point_light_pair_path_bsdf_is_black_and_pairs_go_to_the_page(tmp_path):
+    pairs = cmp.measure_pairs(seconds=0.05, res=RES, seeds=1, cache_dir=tmp_path, progress=False,
+                              pairs=["point light", "caustic"],
+                              reference_spp={"cornell-point": 64, "cornell-spheres": 8})
+    point = pairs["point light"]
+    assert point.methods == ("path", "path_bsdf", "light")
+    # BSDF sampling alone never hits a point light: exactly black, where path tracing is not
+    assert np.all(point.cells[("cornell-point", "path_bsdf")].image == 0)
+    assert point.cells[("cornell-point", "path_bsdf")].mean_ratio == 0.0
+    assert point.cells[("cornell-point", "path")].mean_ratio > 0.5
+    assert pairs["caustic"].rows()[0]["region"] == cmp._region_text(cmp.CAUSTIC_REGION)
+    with pytest.raises(ValueError, match="pairs"):
+        cmp.measure_pairs(seconds=0.05, pairs=["teleport"])
+    paths = write_compare(point, tmp_path / "out", pairs=pairs)
+    rows = _read(paths["pairs"])
+    assert {(r["pair"], r["method"]) for r in rows} == {("point light", "path"), ("point light", "path_bsdf"),
+                                                        ("point light", "light"), ("caustic", "path"),
+                                                        ("caustic", "sppm")}
+    assert "BSDF sampling alone" in paths["html"].read_text()

@@ -699,11 +699,13 @@ PAIRS = {
 
 
 def measure_pairs(*, seconds: float, res: int = 32, seeds: int = 3, seed: int = 0, cache_dir=None,
-                  progress: bool = True, pairs=None) -> dict:
+                  progress: bool = True, pairs=None, reference_spp=None) -> dict:
     """Each slide pair of :data:`PAIRS` at equal time: name -> :class:`CompareResult`.
 
     The references are those of :func:`measure_compare` (the same cache
     keys), so pairs measured after the matrix render no new reference.
+    ``pairs`` names a subset of :data:`PAIRS`; ``reference_spp`` is as in
+    :func:`measure_compare`.
     """
     chosen = tuple(PAIRS) if pairs is None else _names(pairs, "pairs", tuple(PAIRS))
     out = {}
@@ -711,7 +713,7 @@ def measure_pairs(*, seconds: float, res: int = 32, seeds: int = 3, seed: int = 
         scene, methods, region, _ = PAIRS[name]
         methods = [m for m in methods if m in compare_methods()]
         out[name] = measure_compare([scene], methods, seconds=seconds, res=res, seeds=seeds, seed=seed,
-                                    cache_dir=cache_dir, progress=progress,
+                                    cache_dir=cache_dir, progress=progress, reference_spp=reference_spp,
                                     regions={scene: region} if region else None)
         if out[name].interrupted:
             break
