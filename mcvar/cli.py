@@ -172,6 +172,23 @@ def _cmd_compare(args) -> int:
     return 0
 
 
+class _CompareHelp(argparse._HelpAction):
+    """``mcvar compare --help``: lists the scenes and the registered methods, read from the
+    registry only when help is asked for (building the parser stays free of the renderer)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .experiments.compare import DEFAULT_METHODS, compare_methods, compare_scenes
+
+        registered = compare_methods()
+        for action in parser._actions:
+            if action.dest == "scenes":
+                action.help = "comma-separated scenes: " + ", ".join(compare_scenes()) + " (default cornell)"
+            elif action.dest == "methods":
+                action.help = ("comma-separated registered methods: " + ", ".join(registered) + " (default "
+                               + ",".join(m for m in DEFAULT_METHODS if m in registered) + ")")
+        super().__call__(parser, namespace, values, option_string)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mcvar", description="Monte Carlo estimation and its variance, measured.")
@@ -291,21 +308,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)
 
-    from .experiments.compare import DEFAULT_METHODS, compare_methods, compare_scenes
-
-    registered = compare_methods()
-    p = sub.add_parser("compare", parents=[quiet], help="every method on every scene at equal wall time",
+    p = sub.add_parser("compare", parents=[quiet], add_help=False,
+                       help="every method on every scene at equal wall time",
                        description="Render every method on every scene for the same wall time (rounds of "
                                    "spp until --seconds are spent), compare each image with one shared "
                                    "high-spp reference per scene (cached in OUT/.cache), and write "
                                    "compare.csv (median spp, seconds, MSE, efficiency 1 / (MSE x time) over "
                                    "the seeds), compare.png (methods x scenes, the winner of each column "
                                    "framed) and compare.html. Ctrl-C writes the cells finished so far.")
+    p.add_argument("-h", "--help", action=_CompareHelp, help="show this help message and exit")
     p.add_argument("--scenes", type=_name_list, default=["cornell"],
-                   help="comma-separated scenes: " + ", ".join(compare_scenes()) + " (default cornell)")
-    p.add_argument("--methods", type=_name_list, default=None,
-                   help="comma-separated registered methods: " + ", ".join(registered)
-                        + " (default " + ",".join(m for m in DEFAULT_METHODS if m in registered) + ")")
+                   help="comma-separated scenes (default cornell)")
+    p.add_argument("--methods", type=_name_list, default=None, help="comma-separated registered methods")
     p.add_argument("--seconds", type=float, default=2.0, help="wall time per method, scene and seed (default 2)")
     p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
     p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
