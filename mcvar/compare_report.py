@@ -35,6 +35,10 @@ __all__ = ["compare_report", "write_compare", "plot_matrix", "compare_section", 
 _WIN = "#2a9d3a"
 
 
+def _spp(x) -> str:
+    return f"{x:.0f}" if np.isfinite(x) else "—"
+
+
 def plot_matrix(result: CompareResult, path) -> Path:
     """``compare.png``: the reference row, then one row per method, one column per scene.
 
@@ -108,7 +112,7 @@ def compare_section(result: CompareResult, png=None, *, heading: str = "h2") -> 
     table = f"<table class='chart'><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
     numbers = _table(("scene", "method", "spp", "seconds", "MSE", "mean / reference mean", "MSE x time",
                       "efficiency", "relative"),
-                     [(r["scene"], r["method"], _fmt(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]),
+                     [(r["scene"], r["method"], _spp(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]),
                        _fmt(r["mean_ratio"]), _fmt(r["mse_x_time"]), _fmt(r["efficiency"]),
                        _fmt(r["relative_efficiency"])) for r in result.rows() if not r["reason"]])
     refs = _table(("scene", "reference method", "spp", "noise (variance of its mean, in the region)", "seconds",
@@ -163,7 +167,7 @@ def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2"
     parts = [f"<{heading}>The lecture's pairs, at equal time</{heading}>"]
     for name, result in pairs.items():
         scene = result.scenes[0] if result.scenes else PAIRS[name][0]
-        rows = [(r["method"], _fmt(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]), _fmt(r["reference_noise"]),
+        rows = [(r["method"], _spp(r["spp"]), _fmt(r["seconds"]), _fmt(r["mse"]), _fmt(r["reference_noise"]),
                  _fmt(r["mean_ratio"]),
                  _fmt(r["efficiency"]), _fmt(r["relative_efficiency"]), r["winner"], r["reason"])
                 for r in result.rows()]

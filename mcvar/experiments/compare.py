@@ -683,7 +683,8 @@ def radiosity_views(scene: str = "cornell", *, res: int = 32, spp: int = 4, seed
 # --------------------------------------------------------------------------
 
 #: The caustic under ``cornell-spheres``' glass sphere: (row0, row1, col0, col1) fractions of the
-#: image (rows 27-30, columns 18-24 of 32; found where the BDPT reference exceeds depth-2 path tracing).
+#: image (0-based rows 26-31, columns 17-24 of 32 pixels; found where the BDPT reference exceeds
+#: depth-2 path tracing, brightest at rows 28-29, columns 20-22).
 CAUSTIC_REGION = (0.84, 0.97, 0.56, 0.78)
 
 #: Slide pairs measured at equal time: name -> (scene, methods, region or None, the lecture's claim).
