@@ -9,10 +9,11 @@ a shared libLLVM on the system (e.g. ``apt-get install llvm``).
 JIT stay out of mcvar's process, and compares its images with the SAME
 mcvar reference.
 
-The scene is built from :func:`mcvar.scene.load_scene` ('cornell', i.e.
-``CORNELL.md``): the same triangles, two-sided Lambertian materials (Mitsuba's
-``diffuse`` is one-sided, hence ``twosided``), the one-sided rectangular light
-(radiance emitted along ``cross(v1 - v0, v2 - v0)``, as OBJ faces are wound),
+The scene is :func:`mcvar.scene.load_scene` ('cornell', i.e. ``CORNELL.md``)
+exported by :func:`mcvar.interop.mitsuba.to_mitsuba` (docs/mitsuba.md): the
+same triangles, two-sided Lambertian materials (Mitsuba's ``diffuse`` is
+one-sided, hence ``twosided``), the one-sided rectangular light (radiance
+emitted along ``cross(v1 - v0, v2 - v0)``, as the PLY faces are wound),
 the pinhole camera with a horizontal field of view, and a **box** pixel filter
 (Mitsuba's default Gaussian would blur, not estimate, each pixel's mean).
 Mitsuba's ``path`` integrator (unlimited depth, Russian roulette from depth
@@ -33,54 +34,14 @@ import numpy as np
 
 
 def scene_dict(res: int, sampler: str, spp: int, folder: Path) -> dict:
-    """Mitsuba scene dictionary of mcvar's Cornell box; one OBJ per material in ``folder``."""
+    """Mitsuba scene dictionary of mcvar's Cornell box (:func:`mcvar.interop.mitsuba.to_mitsuba`),
+    its meshes written into ``folder``, with the Mitsuba ``sampler`` plugin."""
+    from mcvar.interop.mitsuba import to_mitsuba
     from mcvar.scene import load_scene
 
-    scene = load_scene("cornell")
-    tri = np.asarray(scene.triangles).reshape(-1, 3, 3)
-    mat = np.asarray(scene.prim_material)[: tri.shape[0]]
-    emis = np.asarray(scene.prim_emission)[: tri.shape[0]]
-    cam = scene.camera
-    d = {
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": -1},
-        "sensor": {
-            "type": "perspective",
-            "fov": float(cam.fov_deg),
-            "fov_axis": "x",
-            "to_world": _lookat(cam.position, cam.look_at, cam.up),
-            "sampler": {"type": sampler, "sample_count": spp},
-            "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"},
-                     "pixel_format": "rgb", "component_format": "float32"},
-        },
-    }
-    for m in np.unique(mat):
-        sel = mat == m
-        lines = []
-        for t in tri[sel]:
-            lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in t]
-        nv = 0
-        for _ in range(int(sel.sum())):
-            lines.append(f"f {nv + 1} {nv + 2} {nv + 3}")
-            nv += 3
-        path = folder / f"material{m}.obj"
-        path.write_text("\n".join(lines) + "\n")
-        albedo = [float(a) for a in np.broadcast_to(scene.materials[m].albedo, (3,))]
-        shape = {"type": "obj", "filename": str(path), "face_normals": True,
-                 "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse",
-                                                       "reflectance": {"type": "rgb", "value": albedo}}}}
-        e = emis[sel]
-        if np.any(e > 0):
-            shape["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": [float(x) for x in e[0]]}}
-        d[f"material{m}"] = shape
+    d = to_mitsuba(load_scene("cornell"), res=res, spp=spp, folder=folder)
+    d["sensor"]["sampler"] = {"type": sampler, "sample_count": spp}
     return d
-
-
-def _lookat(origin, target, up):
-    import mitsuba as mi
-
-    return mi.ScalarTransform4f().look_at(origin=[float(x) for x in origin], target=[float(x) for x in target],
-                                          up=[float(x) for x in up])
 
 
 def main(argv=None):

@@ -44,7 +44,7 @@ def _name_list(text: str) -> list[str]:
 def _cmd_samplers(args) -> int:
     from .sampler_report import write_samplers_report
 
-    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, seed=args.seed,
+    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, rng=args.seed,
                                   progress=not args.quiet)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -63,6 +63,7 @@ def _cmd_render(args) -> int:
                              f"it needs --integrator bdpt, not {args.integrator!r}")
         options["strategies"] = True
     scene = load_scene(args.scene)
+    _scene_file_defaults(args, scene)
     # estimator options of the path methods, only when asked for (other methods do not take them)
     tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
                                 ("rr_depth", args.rr_depth)) if v is not None}
@@ -92,6 +93,24 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _scene_file_defaults(args, scene) -> None:
+    """Fill the options the command line left out (None) from what a scene file says
+    (``Scene.render_defaults``: film size, sample count, path depth, roulette depth),
+    else the built-in defaults (64 x 64 pixels, 16 spp)."""
+    from .integrators import METHODS
+
+    given = dict(scene.render_defaults)
+    if args.res is None:
+        args.res = given.get("res", 64)
+    if args.spp is None:
+        args.spp = given.get("spp", 16)
+    if args.max_depth is None and args.integrator in ("path", "path_bsdf", "light", "bdpt"):
+        args.max_depth = given.get("max_depth")
+    method = METHODS.get(args.integrator)
+    if args.rr_depth is None and "rr_depth" in given and method is not None and "rr_depth" in method.options:
+        args.rr_depth = given["rr_depth"]
+
+
 def _adaptive_workers(workers):
     """Processes of an adaptive render: ``workers``, or by default both cores (the
     caller and one pool process; docs/performance.md: 1.6x on a 2-core machine
@@ -106,7 +125,13 @@ def _adaptive_default(args) -> bool:
     from .adaptive import ADAPTIVE_INTEGRATORS
 
     return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
-            and args.sampler not in ("grid", "jittered") and args.spp >= 16)
+            and not _square_sampler(args.sampler) and args.spp >= 16)
+
+
+def _square_sampler(name: str) -> bool:
+    from .samplers import SAMPLERS
+
+    return name in SAMPLERS and SAMPLERS[name].square
 
 
 def _cmd_converge(args) -> int:
@@ -121,9 +146,18 @@ def _cmd_converge(args) -> int:
         target = load_target(args.target_spec)
     else:
         target = args.target
-    paths = convergence_report(target, args.out, methods=args.methods, samplers=args.samplers,
-                               spp=args.spp, replicates=args.replicates, res=args.res,
-                               seed=args.seed, workers=args.workers, progress=not args.quiet,
+    methods, res = args.methods, args.res
+    if args.target_spec is None and target.lower().endswith(".xml"):
+        # a scene file: its film width and path depth unless --res / --methods say otherwise
+        from .scene import load_scene
+
+        given = load_scene(target).render_defaults
+        res = given.get("res", (32, 32))[0] if res is None else res
+        if methods is None and given.get("max_depth") is not None:
+            methods = [f"path:{given['max_depth']}"]
+    paths = convergence_report(target, args.out, methods=methods, samplers=args.samplers,
+                               spp=args.spp, replicates=args.replicates, res=32 if res is None else res,
+                               rng=args.seed, workers=args.workers, progress=not args.quiet,
                                reference=args.reference)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -131,7 +165,7 @@ def _cmd_converge(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from .report import demo
+    from .demo import demo
 
     paths = demo(args.out, progress=not args.quiet)
     if not args.no_best:
@@ -153,7 +187,7 @@ def _cmd_demo(args) -> int:
 def _cmd_chart(args) -> int:
     from .chart_report import chart_report
 
-    paths = chart_report(args.out, quick=args.quick, methods=args.methods, seed=args.seed,
+    paths = chart_report(args.out, quick=args.quick, methods=args.methods, rng=args.seed,
                          workers=args.workers, progress=not args.quiet,
                          command="mcvar " + " ".join(sys.argv[1:]))
     for key, path in paths.items():
@@ -172,21 +206,33 @@ def _cmd_compare(args) -> int:
     return 0
 
 
-class _CompareHelp(argparse._HelpAction):
-    """``mcvar compare --help``: lists the scenes and the registered methods, read from the
-    registry only when help is asked for (building the parser stays free of the renderer)."""
+class _RegistryHelp(str):
+    """A help text naming the registered methods, filled in only when help is shown
+    (argparse formats help with ``%``): building the parser imports no integrator."""
 
-    def __call__(self, parser, namespace, values, option_string=None):
-        from .experiments.compare import DEFAULT_METHODS, compare_methods, compare_scenes
+    def __new__(cls, template: str, what: str):
+        obj = super().__new__(cls, template)
+        obj.what = what
+        return obj
 
-        registered = compare_methods()
-        for action in parser._actions:
-            if action.dest == "scenes":
-                action.help = "comma-separated scenes: " + ", ".join(compare_scenes()) + " (default cornell)"
-            elif action.dest == "methods":
-                action.help = ("comma-separated registered methods: " + ", ".join(registered) + " (default "
-                               + ",".join(m for m in DEFAULT_METHODS if m in registered) + ")")
-        super().__call__(parser, namespace, values, option_string)
+    def __mod__(self, params):
+        if self.what == "samplers":
+            from .samplers import SAMPLERS
+
+            names = ", ".join(SAMPLERS)
+        elif self.what == "rows":
+            from .experiments.chart import chart_methods
+
+            names = ", ".join(chart_methods())
+        elif self.what == "scenes":
+            from .scene import SCENES
+
+            names = ", ".join(SCENES)
+        else:
+            from .integrators import METHODS
+
+            names = ", ".join(METHODS)
+        return str.__mod__(str(self).replace("{" + self.what + "}", names.replace("%", "%%")), params)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -214,14 +260,18 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Render a scene with one integrator and sampler. .npy holds "
                                    "linear radiance (H, W, 3), row 0 at the top; .png is tonemapped "
                                    "to sRGB; .exr is linear. Ctrl-C keeps the spp finished so far.")
-    p.add_argument("scene", help="scene name: cornell, cornell-spheres, checkerboard, furnace, quad-environment")
-    p.add_argument("--res", type=int, default=64, help="image width and height in pixels (default 64)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
-                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster, "
-                                                          "position: any method of mcvar.integrators.METHODS")
-    p.add_argument("--sampler", default="sobol", help="pixel sampler name from mcvar.samplers (default sobol; "
-                                                        "the previous default was random)")
+    p.add_argument("scene", help="scene name (cornell, cornell-spheres, checkerboard, furnace, quad-environment, "
+                                 "...) or a Mitsuba 3 scene file FILE.xml (docs/scene-files.md)")
+    p.add_argument("--res", type=int, default=None, help="image width and height in pixels (default 64, or a "
+                                                         "scene file's film)")
+    p.add_argument("--spp", type=int, default=None, help="samples per pixel (default 16, or a scene file's "
+                                                         "sample_count)")
+    p.add_argument("--integrator", default="path",
+                   help=_RegistryHelp("rendering method, any of mcvar.integrators.METHODS: {methods} "
+                                      "(default path: NEE + MIS)", "methods"))
+    p.add_argument("--sampler", default="sobol",
+                   help=_RegistryHelp("pixel sampler, any of mcvar.samplers.SAMPLERS: {samplers} (default sobol; "
+                                      "the previous default was random)", "samplers"))
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
@@ -254,23 +304,26 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(cornell, ...) or an integrand (checkerboard, hemisphere, ...) "
                                    "and write plots, a CSV of every number and a summary page.")
     p.add_argument("target", nargs="?", default=None,
-                   help="scene (cornell, cornell-spheres) or integrand (checkerboard, hemisphere, ...)")
+                   help="scene (cornell, cornell-spheres, or a Mitsuba 3 FILE.xml) or integrand "
+                        "(checkerboard, hemisphere, ...)")
     p.add_argument("--target", dest="target_spec", metavar="MODULE:FUNCTION", default=None,
                    help="your own renderer instead: FUNCTION(method, sampler, spp, rng) -> image in "
                         "MODULE (importable from the current folder); methods from --methods or the "
                         "module's METHODS; reference from --reference, EXACT or reference(rng)")
     p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
-                   default=None, help="comma-separated integrators (scenes; 'path:3' stops paths at "
+                   default=None, help="comma-separated rendering methods (scenes; 'path:3' stops paths at "
                                       "depth 3, 'path' uses Russian roulette) or the problem's "
                                       "estimators (integrands); default: path,path:2,direct or "
-                                      "every estimator")
+                                      "every estimator (--integrators and --estimators are aliases)")
     p.add_argument("--samplers", type=_name_list, default=None,
-                   help="comma-separated sampler names (default random,jittered,sobol)")
+                   help=_RegistryHelp("comma-separated sampler names ({samplers}; default "
+                                      "random,jittered,sobol)", "samplers"))
     p.add_argument("--spp", type=_int_list, default=None,
                    help="comma-separated spp (or N) levels (default 1,4,16,64 for scenes, "
                         "1,4,...,4096 for integrands)")
     p.add_argument("--replicates", type=int, default=8, help="independent replicates per level (default 8)")
-    p.add_argument("--res", type=int, default=32, help="image resolution for scenes (default 32)")
+    p.add_argument("--res", type=int, default=None, help="image resolution for scenes (default 32, or a scene "
+                                                         "file's film width)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.add_argument("--reference", type=Path, default=None,
@@ -302,24 +355,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="16 x 16 pixels, 10 replicates (under 2 minutes "
                                                         "for spp methods on 2 cores)")
     p.add_argument("--methods", type=_name_list, default=None,
-                   help="comma-separated chart methods (raster, path, path_depth3, light, bdpt, pssmlt, "
-                        "photon, sppm, radiosity); default: every registered one")
+                   help=_RegistryHelp("comma-separated chart methods ({rows}; 'path_depth3' is an alias of "
+                                      "'path:3'); default: every registered one", "rows"))
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)
 
-    p = sub.add_parser("compare", parents=[quiet], add_help=False,
-                       help="every method on every scene at equal wall time",
+    p = sub.add_parser("compare", parents=[quiet], help="every method on every scene at equal wall time",
                        description="Render every method on every scene for the same wall time (rounds of "
                                    "spp until --seconds are spent), compare each image with one shared "
                                    "high-spp reference per scene (cached in OUT/.cache), and write "
                                    "compare.csv (median spp, seconds, MSE, efficiency 1 / (MSE x time) over "
                                    "the seeds), compare.png (methods x scenes, the winner of each column "
                                    "framed) and compare.html. Ctrl-C writes the cells finished so far.")
-    p.add_argument("-h", "--help", action=_CompareHelp, help="show this help message and exit")
     p.add_argument("--scenes", type=_name_list, default=["cornell"],
-                   help="comma-separated scenes (default cornell)")
-    p.add_argument("--methods", type=_name_list, default=None, help="comma-separated registered methods")
+                   help=_RegistryHelp("comma-separated scenes: {scenes} (default cornell)", "scenes"))
+    p.add_argument("--methods", type=_name_list, default=None,
+                   help=_RegistryHelp("comma-separated registered methods: {methods} (default "
+                                      "path,path_bsdf,direct,light,bdpt,pssmlt,photon,sppm,radiosity: "
+                                      "mcvar.experiments.compare.DEFAULT_METHODS, those registered)", "methods"))
     p.add_argument("--seconds", type=float, default=2.0, help="wall time per method, scene and seed (default 2)")
     p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
     p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
@@ -333,13 +387,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What ``main`` reports as a user's error (one line on stderr, exit status 2):
+#: bad values and types (the library's ``ValueError``/``TypeError`` name the
+#: argument), files that cannot be read or written (``OSError``: a missing
+#: file, ``--out`` naming a directory, no permission, a full disk) and a
+#: ``--target`` module that cannot be imported. Anything else (``KeyError``,
+#: ``IndexError``, ``MemoryError`` ...) is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, TypeError, OSError, ImportError)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
-        print(f"mcvar {args.command}: error: {exc}", file=sys.stderr)
+    except USER_ERRORS as exc:
+        print(f"mcvar {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mcvar {args.command}: interrupted", file=sys.stderr)

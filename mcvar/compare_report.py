@@ -27,12 +27,18 @@ import numpy as np
 
 from .experiments.compare import PAIRS, CompareResult, measure_compare, measure_pairs, radiosity_views
 from .plotting import plt, save_figure
-from .report import _CSS, _PRINT_JS, _csv, _details, _fmt, _img, _table, _tonemap
+from .images import linear_to_srgb
+from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, details as _details, fmt as _fmt, img as _img,
+                    table as _table, write_csv as _csv)
 
 __all__ = ["compare_report", "write_compare", "plot_matrix", "compare_section", "pair_rows", "pairs_section",
            "VIEW_COLUMNS", "view_rows"]
 
 _WIN = "#2a9d3a"
+
+
+def _tonemap(image) -> np.ndarray:
+    return linear_to_srgb(np.clip(image, 0.0, None))
 
 
 def _spp(x) -> str:

@@ -9,8 +9,8 @@ The lecture's 'Bidirectional Path Tracing' slides: trace a camera subpath
 * ``s = 0``: the camera subpath hits an emitter (path tracing's BSDF-sampled
   emission);
 * ``s = 1``: a camera vertex joined to the light subpath's origin ``y_0``
-  (next-event estimation; point lights are reached only this way and by
-  ``t = 1``);
+  (next-event estimation; point lights are reached only this way: ``(1,
+  1)``, a point light seen by the camera, is left out as in path tracing);
 * ``s, t >= 2``: ``y_{s-1}`` and ``z_{t-1}`` joined by a shadow ray;
 * ``t = 1``: a light vertex joined to the pinhole and splatted (light
   tracing).
@@ -42,15 +42,18 @@ References
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from .._validation import check_bool
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult, splat
-from .light import (CHUNK_PATHS, RR_MAX_VERTICES, _bsdf_eval, _connect_camera, _Context, _cos, _dot, _unit,
-                    _unoccluded, camera_subpath, check_scene, light_subpath)
+from .light import (CHUNK_PATHS, RR_MAX_VERTICES, _bsdf_eval, _connect_camera, _Context, _cos, _dot, _Only,
+                    _unit, _unoccluded, camera_subpath, check_scene, light_subpath)
 from .registry import Method, register
 
-__all__ = ["STRATEGY_DEPTH", "bdpt_contributions", "strategy_grid", "strategies_from_extra",
+__all__ = ["STRATEGY_DEPTH", "BDPTSettings", "bdpt_contributions", "strategy_grid", "strategies_from_extra",
            "write_strategies", "run_bdpt_batch"]
 
 #: The strategy images (``strategies=True``) cover every (s, t) with
@@ -100,10 +103,15 @@ def _mis_weight(ctx, L, C, s, t, il, ic, over):
 
 
 def _connect_emitter(ctx, C, t):
-    """Strategy (s = 0, t): camera vertex ``z_{t-1}`` lies on an emitter."""
+    """Strategy (s = 0, t): camera vertex ``z_{t-1}`` lies on an emitter, or
+    is the environment (the camera ray left the scene)."""
     em = ctx.em
     ic = np.flatnonzero(C.length >= t)
-    ic = ic[np.take(em.prim_select, C.prim[t - 1, ic]) > 0.0]
+    inf = C.infinite[t - 1, ic]
+    if np.any(inf):
+        parts = [_connect_environment(ctx, C, t, ic[inf]), _connect_emitter(ctx, _Only(C, ic[~inf]), t)]
+        return tuple(np.concatenate(a) for a in zip(*parts))
+    ic = ic[(C.prim[t - 1, ic] >= 0) & (np.take(em.prim_select, np.maximum(C.prim[t - 1, ic], 0)) > 0.0)]
     if ic.size == 0:
         return ic, np.zeros((0, 3)), np.zeros(0)
     k = t - 1
@@ -116,6 +124,31 @@ def _connect_emitter(ctx, C, t):
     if k - 1 >= 1:
         over[("C", k - 1)] = em.pdf_dir(prim, pk, wo) * _cos(C.surface[k - 1, ic], C.ng[k - 1, ic], wo) / (r * r)
     return ic, value, _mis_weight(ctx, None, C, 0, t, None, ic, over)
+
+
+def _connect_environment(ctx, C, t, ic):
+    """Strategy (s = 0, t) for camera paths ``ic`` whose vertex ``z_{t-1}`` is
+    the environment: ``beta L(w)``, weighted against the light origin's
+    density ``p_choice p(w)`` at ``z_{t-1}`` and the disk's
+    ``|cos| / (pi r^2)`` at ``z_{t-2}`` (pbrt-v4's infinite-light vertex)."""
+    em, k = ctx.em, t - 1
+    towards = C.ng[k, ic]
+    value = C.beta[k, ic] * em.env.radiance(towards)
+    go = np.flatnonzero(value.max(axis=1) > 0.0)
+    ic, value, towards = ic[go], value[go], towards[go]
+    if ic.size == 0:
+        return ic, value, np.zeros(0)
+    over = {("C", k): em.env_pdf_origin(towards)}
+    if k - 1 >= 1:
+        over[("C", k - 1)] = em.env_pdf_pos * _cos(C.surface[k - 1, ic], C.ng[k - 1, ic], towards)
+    return ic, value, _mis_weight(ctx, None, C, 0, t, None, ic, over)
+
+
+def _escapes(tracer, eps, p, n, towards):
+    """The rays from surface points ``p`` (normals ``n``) along ``towards`` leave the scene."""
+    o = p + n * (eps * np.sign(_dot(n, towards)))[:, None]
+    return ~tracer.occluded_soa(np.ascontiguousarray(o.T), np.ascontiguousarray(towards.T),
+                                np.full(p.shape[0], np.inf))
 
 
 def _connect_inner(ctx, L, C, s, t):
@@ -133,6 +166,9 @@ def _connect_inner(ctx, L, C, s, t):
     pq, nq, sq = L.p[q, idx], L.ng[q, idx], L.surface[q, idx]
     pk, nk = C.p[k, idx], C.ng[k, idx]
     w, dist = _unit(pk - pq)                                  # from y_q to z_k
+    inf = L.infinite[q, idx] if s == 1 else np.zeros(idx.size, dtype=bool)
+    if np.any(inf):      # y_0 at infinity: along -w towards z_k, G = |cos theta_k| (no distance)
+        w[inf], dist[inf] = -nq[inf], 1.0
     d2 = dist * dist
     wo_k, r_k = _unit(C.p[k - 1, idx] - pk)
     f_k, pdf_k_fwd, pdf_k_rev = _bsdf_eval(scene, ctx.flips, C.mat[k, idx], nk, wo_k, -w)
@@ -155,7 +191,12 @@ def _connect_inner(ctx, L, C, s, t):
             pdf_q_rev, wo_q, r_q = pdf_q_rev[go], wo_q[go], r_q[go]
     if idx.size == 0:
         return idx, value, np.zeros(0)
-    vis = _unoccluded(ctx.tracer, ctx.eps, pq, nq, pk, nk)
+    inf = L.infinite[q, idx] if s == 1 else np.zeros(idx.size, dtype=bool)
+    vis = np.zeros(idx.size, dtype=bool)
+    fin = np.flatnonzero(~inf)
+    vis[fin] = _unoccluded(ctx.tracer, ctx.eps, pq[fin], nq[fin], pk[fin], nk[fin])
+    if np.any(inf):
+        vis[inf] = _escapes(ctx.tracer, ctx.eps, pk[inf], nk[inf], nq[inf])
     sel = np.flatnonzero(vis)
     idx, value = idx[sel], value[sel]
     over = {("C", k): pdf_q_fwd[sel] * cos_k[sel] / d2[sel],
@@ -164,15 +205,28 @@ def _connect_inner(ctx, L, C, s, t):
         over[("C", k - 1)] = (pdf_k_rev[sel] * _cos(C.surface[k - 1, idx], C.ng[k - 1, idx], wo_k[sel])
                               / (r_k[sel] ** 2))
     if s >= 2:
-        over[("L", q - 1)] = (pdf_q_rev[sel] * _cos(L.surface[q - 1, idx], L.ng[q - 1, idx], wo_q[sel])
-                              / (r_q[sel] ** 2))
+        r2 = np.where(L.infinite[q - 1, idx], 1.0, r_q[sel] ** 2)       # none to an environment y_0
+        over[("L", q - 1)] = pdf_q_rev[sel] * _cos(L.surface[q - 1, idx], L.ng[q - 1, idx], wo_q[sel]) / r2
     return idx, value, _mis_weight(ctx, L, C, s, t, idx, idx, over)
 
 
 
-def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, max_depth=None,
-                       heuristic="power", mis=True, strategies=False):
+@dataclass(frozen=True)
+class BDPTSettings:
+    """How :func:`bdpt_contributions` traces: ``max_depth`` (None: Russian roulette), the MIS
+    ``heuristic``, ``mis`` (False: uniform weights) and ``strategies`` (keep every strategy's image)."""
+
+    max_depth: int | None = None
+    heuristic: str = "power"
+    mis: bool = True
+    strategies: bool = False
+
+
+def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, settings: BDPTSettings | None = None):
     """Bidirectional path tracing of one camera path per ``pixel`` (and one light path each).
+
+    ``settings`` (:class:`BDPTSettings`) holds ``max_depth``, ``heuristic``,
+    ``mis`` and ``strategies``, formerly four trailing arguments.
 
     Returns ``(camera_sum, camera_sq, splat_sum, rays, per_strategy)``:
     per-pixel sums of the camera-side estimates (t >= 2; ``camera_sq`` of
@@ -181,12 +235,17 @@ def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, max_dep
     weighted contributions of every strategy of depth ``s + t - 1 <=``
     :data:`STRATEGY_DEPTH` (camera-side ones per pixel, t = 1 splatted).
     """
+    settings = BDPTSettings() if settings is None else settings
+    if not isinstance(settings, BDPTSettings):
+        raise TypeError(f"settings must be a BDPTSettings (max_depth, heuristic, mis, strategies); "
+                        f"got {type(settings).__name__}")
     w, h = res
     n_pix = w * h
-    out = [np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), 0, {} if strategies else None]
+    ctx = _Context(scene, tracer, origins, res, settings.heuristic, settings.mis)
+    out = [np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), 0,
+           {} if settings.strategies else None]
     for a in range(0, pixel.shape[0], CHUNK_PATHS):
-        part = _bdpt_chunk(scene, tracer, origins, res, pixel[a:a + CHUNK_PATHS], offsets[a:a + CHUNK_PATHS],
-                           rng, max_depth, heuristic, mis, strategies)
+        part = _bdpt_chunk(ctx, pixel[a:a + CHUNK_PATHS], offsets[a:a + CHUNK_PATHS], rng, settings)
         for j in range(4):
             out[j] += part[j]
         for key, img in (part[4] or {}).items():
@@ -194,8 +253,10 @@ def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, max_dep
     return tuple(out)
 
 
-def _bdpt_chunk(scene, tracer, origins, res, pixel, offsets, rng, max_depth, heuristic, mis, strategies):
+def _bdpt_chunk(ctx, pixel, offsets, rng, settings: BDPTSettings):
     """:func:`bdpt_contributions` for at most :data:`CHUNK_PATHS` paths."""
+    scene, tracer, origins, res = ctx.scene, ctx.tracer, ctx.em, ctx.res
+    max_depth, strategies = settings.max_depth, settings.strategies
     w, h = res
     n = pixel.shape[0]
     n_pix = w * h
@@ -204,7 +265,6 @@ def _bdpt_chunk(scene, tracer, origins, res, pixel, offsets, rng, max_depth, heu
     max_l = RR_MAX_VERTICES if roulette else max_depth
     C = camera_subpath(scene, tracer, res, pixel, offsets, max_c, rng, roulette)
     L = light_subpath(scene, tracer, origins, n, max_l, rng, roulette)
-    ctx = _Context(scene, tracer, origins, res, heuristic, mis)
     rays = C.rays + L.rays
     per_path = np.zeros((n, 3))
     splats = np.zeros((n_pix, 3))
@@ -307,9 +367,10 @@ def run_bdpt_batch(job: BatchJob) -> BatchResult:
     n_pix = job.n_pixels
     pixel = np.repeat(np.arange(n_pix), job.spp)
     offsets = job.u[:, 0:2] if job.u is not None else job.rng.random((pixel.size, 2))
-    cam, _, spl, rays, per = bdpt_contributions(
-        job.scene, job.tracer, LightOrigins(job.scene), job.res, pixel, offsets, job.rng, job.max_depth,
-        job.heuristic, bool(job.options.get("mis", True)), bool(job.options.get("strategies", False)))
+    settings = BDPTSettings(job.max_depth, job.heuristic, bool(job.options.get("mis", True)),
+                            bool(job.options.get("strategies", False)))
+    cam, _, spl, rays, per = bdpt_contributions(job.scene, job.tracer, LightOrigins(job.scene), job.res, pixel,
+                                                offsets, job.rng, settings)
     total = cam + spl
     if not np.all(np.isfinite(total)):
         raise FloatingPointError("bdpt produced non-finite radiance (a bug, please report)")
@@ -318,10 +379,14 @@ def run_bdpt_batch(job: BatchJob) -> BatchResult:
 
 
 def _check_bdpt(scene, options):
+    check_bool(options["mis"], "mis")
+    check_bool(options["strategies"], "strategies")
     check_scene(scene, options, "bdpt")
 
 
 register(Method(
     "bdpt", "splat", run_bdpt_batch,
     "bidirectional path tracing: every (s, t) strategy, weighted by MIS (heuristic=; mis=False: uniform)",
-    options={"mis": True, "strategies": False}, check_scene=_check_bdpt, lecture=("yes", "yes")))
+    options={"mis": True, "strategies": False}, check_scene=_check_bdpt, lecture=("yes", "yes"),
+    chart_row="Bidirectional Path Tracing",
+    theory=("yes", "yes", "every (s, t) connection strategy weighted by MIS: unbiased and consistent")))

@@ -9,11 +9,14 @@
   :meth:`Emitters.pdf_li` gives that density for an emitter *hit* by BSDF
   sampling (the MIS weight of emission found by chance).
 * Light subpaths (:class:`LightOrigins`, :func:`sample_le`, :func:`pdf_le`,
-  pbrt-v4's ``SampleLe``/``PDF_Le``): an emitting primitive or a point light
-  chosen by power, a point uniform by area on it and a cosine-weighted
-  direction about its emitting normal (a point light: uniform on the
-  sphere), for light tracing and bidirectional methods (issue 11). NEE also
-  samples point lights (after the area lights; MIS weight 1).
+  pbrt-v4's ``SampleLe``/``PDF_Le``): an emitting primitive, a point light
+  or the environment chosen by power, a point uniform by area on it and a
+  cosine-weighted direction about its emitting normal (a point light:
+  uniform on the sphere; the environment: a direction from its importance
+  distribution and a point on a disk of the scene's bounding-sphere radius
+  perpendicular to it), for light tracing, bidirectional and photon methods
+  (issues 11, 26). NEE also samples point lights (after the area lights; MIS
+  weight 1).
 """
 from __future__ import annotations
 
@@ -25,7 +28,8 @@ from .._validation import check_choice
 from ..geometry import Frame, _clip_halfplanes, polygon_pixel_coverage
 from ..warps import (_rectangle_soa_frame, _rectangle_solid_angle_soa, _spherical_rectangle_soa,
                      area_to_solid_angle_pdf, square_to_cosine_hemisphere,
-                     square_to_cosine_hemisphere_pdf, square_to_uniform_sphere, square_to_uniform_triangle)
+                     square_to_cosine_hemisphere_pdf, square_to_uniform_disk_concentric,
+                     square_to_uniform_sphere, square_to_uniform_triangle)
 
 __all__ = ["Emitters", "LightOrigins", "VisibleLights", "sample_le", "pdf_le", "LIGHT_SAMPLING",
            "VISIBLE_LIGHTS"]
@@ -219,7 +223,7 @@ class Emitters:
         ks = [0] if li is None else np.unique(li)
         for k in ks:
             sel = slice(None) if li is None else np.flatnonzero(li == k)
-            w[:, sel], dist[sel], s = _spherical_rectangle_soa(u[0, sel], u[1, sel], p[:, sel],
+            w[:, sel], dist[sel], s = _spherical_rectangle_soa(u[:, sel], p[:, sel],
                                                               self.scene.light_origin[k], *self.rect[k])
             pdf[sel] = self._rect_pdf(int(k), p[:, sel], s)
         le = np.broadcast_to(self.radiance_soa[:, :1], (3, m)) if li is None else \
@@ -267,10 +271,6 @@ class Emitters:
 
 
 # -- light subpaths ------------------------------------------------------------
-
-#: :meth:`VisibleLights.image` by content digest (a few entries per process).
-_IMAGES: dict = {}
-
 
 class VisibleLights:
     """Area lights seen directly by the camera, integrated exactly over every pixel.
@@ -359,8 +359,10 @@ class VisibleLights:
         """``(W H, 3)``: per flat pixel ``i W + j``, the box-filtered radiance
         of the exactly handled lights, occlusion ignored (the pixel integral of ``g``).
 
-        Cached per process by content (camera, lights, resolution): every
-        batch of a render asks for it. Read-only.
+        Cached on the scene object, by content (camera, lights, resolution):
+        derived state of that (frozen) scene, so every batch of a render that
+        holds the scene reuses it and the cache lives and dies with the
+        scene (no module global). Read-only.
         """
         from ..scene import _film_res
 
@@ -371,13 +373,14 @@ class VisibleLights:
             *(self.scene.light_origin[k] for k in self.lights), *(self.scene.light_edge1[k] for k in self.lights),
             *(self.scene.light_edge2[k] for k in self.lights),
             *(self.scene.light_radiance[k] for k in self.lights)))).hexdigest()
-        img = _IMAGES.get(key)
+        images = self.scene.__dict__.setdefault("_visible_light_images", {})
+        img = images.get(key)
         if img is None:
             img = self._image(width, height)
             img.flags.writeable = False
-            if len(_IMAGES) >= 8:
-                _IMAGES.pop(next(iter(_IMAGES)))
-            _IMAGES[key] = img
+            if len(images) >= 8:
+                images.pop(next(iter(images)))
+            images[key] = img
         return img
 
     def _image(self, width, height):
@@ -432,6 +435,24 @@ class VisibleLights:
         return out
 
 
+def _bounding_sphere(scene):
+    """Centre and radius of the sphere around the bounding box of the scene's
+    triangles and spheres (pbrt's ``Bounds3::BoundingSphere``); the camera is
+    not part of it."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    if scene.n_triangles:
+        v = scene.triangles.reshape(-1, 3)
+        lo, hi = np.minimum(lo, v.min(axis=0)), np.maximum(hi, v.max(axis=0))
+    if scene.n_spheres:
+        r = scene.sphere_radii[:, None]
+        lo = np.minimum(lo, (scene.sphere_centers - r).min(axis=0))
+        hi = np.maximum(hi, (scene.sphere_centers + r).max(axis=0))
+    if not np.all(hi >= lo):
+        return np.zeros(3), 1.0
+    center = 0.5 * (lo + hi)
+    return center, max(float(np.linalg.norm(hi - center)), 1e-12)
+
+
 class LightOrigins:
     """Every emitter of a scene as an origin of light subpaths (pbrt-v4's ``SampleLe``/``PDF_Le``).
 
@@ -446,9 +467,32 @@ class LightOrigins:
     sphere. BDPT's ``s = 1`` strategy joins camera vertices to these same
     origins, so its MIS weights see one light-sampling technique.
 
+    An environment map is an origin too (pbrt-v4's infinite lights): its
+    power is ``pi r^2 int L d omega`` for the radius ``r`` of the scene's
+    bounding sphere (:attr:`center`, :attr:`radius`: the flux through a disk
+    that covers the scene). A sample draws a direction ``w`` towards the
+    map from its importance distribution (:meth:`EnvironmentMap.sample`,
+    solid-angle density ``p(w)``) and a point uniform on the disk of radius
+    ``r`` perpendicular to ``w``, centred at ``center + r w``; the ray
+    leaves it along ``-w`` (area density ``1 / (pi r^2)``). The sample's
+    ``p`` is that disk point, ``n`` the ray direction ``-w``, ``le = L(w)``,
+    ``pdf_pos = p_choice / (pi r^2)``, ``pdf_dir = p(w)`` and ``cos = 1``.
+
     Parameters
     ----------
     scene : mcvar.scene.Scene
+
+    Attributes
+    ----------
+    pmf : ndarray, shape (count,)
+        Choice probability of every origin: emitting primitives
+        (:attr:`prims`), point lights, then the environment (if any).
+    power_rgb : ndarray, shape (count, 3)
+        Emitted power of every origin (the choice is by its mean over RGB).
+    env_index : int
+        Index of the environment among the origins, -1 without one.
+    center, radius : ndarray (3,), float
+        The scene's bounding sphere (of its triangles and spheres).
     """
 
     def __init__(self, scene):
@@ -467,8 +511,15 @@ class LightOrigins:
         area[is_tri] = 0.5 * twice[prims[is_tri]]
         area[~is_tri] = 4.0 * np.pi * scene.sphere_radii[prims[~is_tri] - n_tri] ** 2
         two = scene.prim_two_sided_emission[prims]
-        power = np.concatenate([scene.prim_emission[prims].mean(axis=1) * area * np.pi * (1.0 + two),
-                                4.0 * np.pi * scene.point_light_intensity.mean(axis=1)])
+        self.env = scene.environment
+        self.center, self.radius = _bounding_sphere(scene)
+        power = [scene.prim_emission[prims] * (area * np.pi * (1.0 + two))[:, None],
+                 4.0 * np.pi * scene.point_light_intensity]
+        if self.env is not None:
+            power.append(np.pi * self.radius ** 2 * self.env.power()[None])
+        self.power_rgb = np.concatenate(power)
+        self.env_index = self.power_rgb.shape[0] - 1 if self.env is not None else -1
+        power = self.power_rgb.mean(axis=1)
         total = power.sum()
         self.count = power.size
         #: choice probability of every origin (emitting primitives, then point lights)
@@ -479,6 +530,18 @@ class LightOrigins:
         self.prim_select[prims] = self.pmf[:prims.size]
         self.prim_area = np.ones(n_prim)
         self.prim_area[prims] = area
+
+    def index(self, light) -> np.ndarray:
+        """Origin index (into :attr:`pmf`) of :func:`sample_le`'s ``light`` codes
+        (primitive, ``-1 - j`` point light ``j``, ``-1 - P`` the environment)."""
+        light = np.asarray(light, dtype=np.int64)
+        n_area = self.prims.size
+        return np.where(light >= 0, np.searchsorted(self.prims, np.maximum(light, 0)), n_area - 1 - light)
+
+    @property
+    def env_pdf_pos(self) -> float:
+        """Area density ``1 / (pi r^2)`` of an environment origin on its disk (no choice)."""
+        return 1.0 / (np.pi * self.radius ** 2)
 
     @property
     def empty(self) -> bool:
@@ -506,8 +569,9 @@ class LightOrigins:
         ``prim`` (-1 for point lights), ``point`` (point-light index or -1),
         ``pdf_pos`` (choice x area density; the choice alone for a point
         light, a Dirac delta in position), ``pdf_dir`` (per steradian), ``le``
-        (radiance, or a point light's intensity, along ``w``) and ``cos`` (1
-        for point lights).
+        (radiance, or a point light's intensity, along ``w``), ``cos`` (1
+        for point lights and the environment) and ``env`` (bool: the
+        environment's disk, see the class notes).
         """
         scene = self.scene
         u_pos = np.array(u_pos, dtype=np.float64).reshape(-1, 2)
@@ -558,7 +622,8 @@ class LightOrigins:
             cos[ia] = local[:, 1]
             pdf_dir[ia] = square_to_cosine_hemisphere_pdf(local) * np.where(two, 0.5, 1.0)
             le[ia] = self.emission(pr, p[ia], w[ia])
-        ip = np.flatnonzero(k >= n_area)
+        env = k == self.env_index
+        ip = np.flatnonzero((k >= n_area) & ~env)
         if ip.size:
             j = k[ip] - n_area
             point[ip] = j
@@ -566,7 +631,24 @@ class LightOrigins:
             le[ip] = scene.point_light_intensity[j]
             w[ip] = square_to_uniform_sphere(u_dir[ip])
             pdf_dir[ip] = 0.25 / np.pi
-        return dict(p=p, n=nrm, w=w, prim=prim, point=point, pdf_pos=pdf_pos, pdf_dir=pdf_dir, le=le, cos=cos)
+        ie = np.flatnonzero(env)
+        if ie.size:
+            p[ie], w[ie], le[ie], pdf_dir[ie] = self._sample_environment(u_pos[ie], u_dir[ie])
+            nrm[ie] = w[ie]
+            pdf_pos[ie] *= self.env_pdf_pos
+        return dict(p=p, n=nrm, w=w, prim=prim, point=point, pdf_pos=pdf_pos, pdf_dir=pdf_dir, le=le, cos=cos,
+                    env=env)
+
+    def _sample_environment(self, u_pos, u_dir):
+        """Rays from the environment into the scene (pbrt-v4's infinite-light ``SampleLe``):
+        ``(points on the disk, directions -w, L(w), p(w))`` for directions ``w``
+        towards the map drawn from its importance distribution."""
+        towards, pdf = self.env.sample(u_dir)
+        disk = square_to_uniform_disk_concentric(u_pos)
+        fr = Frame(towards)
+        r = self.radius
+        p = self.center + r * (towards + fr.s * disk[:, 0:1] + fr.t * disk[:, 1:2])
+        return p, -towards, self.env.radiance(towards), pdf
 
     def emission(self, prim, p, w):
         """Radiance emitted by primitives ``prim`` at ``p`` towards unit ``w`` (leaving), (n, 3)."""
@@ -583,22 +665,40 @@ class LightOrigins:
         return np.take(self.prim_select, prim) / np.take(self.prim_area, prim)
 
     def light_le(self, point, prim, p, w):
-        """The 'BSDF' of light vertices ``y_0``: a point light's intensity, or the radiance towards ``w``."""
+        """The 'BSDF' of light vertices ``y_0``: a point light's intensity, or the
+        radiance towards ``w`` (an environment vertex, ``point`` and ``prim``
+        both -1: ``L(-w)``, the map seen looking back along the ray)."""
         out = np.zeros((point.shape[0], 3))
         pt = point >= 0
         if np.any(pt):
             out[pt] = self.scene.point_light_intensity[point[pt]]
-        if not np.all(pt):
-            out[~pt] = self.emission(prim[~pt], p[~pt], w[~pt])
+        env = (point < 0) & (prim < 0)
+        if np.any(env):
+            out[env] = self.env.radiance(-w[env])
+        area = ~pt & ~env
+        if np.any(area):
+            out[area] = self.emission(prim[area], p[area], w[area])
         return out
 
     def light_pdf_dir(self, point, prim, p, w):
-        """Solid-angle density with which the origin ``y_0`` emits towards ``w``."""
+        """Density with which the origin ``y_0`` emits towards ``w``: per unit
+        solid angle, except for an environment vertex (``point`` and ``prim``
+        -1), whose rays are parallel: ``1 / (pi r^2)`` per unit area across
+        them (the caller multiplies by the cosine at the next vertex, no
+        ``1 / r^2``: pbrt-v4's ``PdfLight`` of an infinite light)."""
         out = np.full(point.shape[0], 0.25 / np.pi)
-        area = point < 0
+        env = (point < 0) & (prim < 0)
+        out[env] = self.env_pdf_pos
+        area = (point < 0) & ~env
         if np.any(area):
             out[area] = self.pdf_dir(prim[area], p[area], w[area])
         return out
+
+    def env_pdf_origin(self, towards) -> np.ndarray:
+        """Choice times solid-angle density of an environment origin towards
+        ``towards`` (n, 3): the 'position' density of a light vertex at infinity
+        (pbrt-v4's ``PdfLightOrigin`` of an infinite light)."""
+        return self.pmf[self.env_index] * self.env.pdf(towards)
 
 
 def sample_le(scene, u_pos, u_dir):
@@ -612,7 +712,8 @@ def sample_le(scene, u_pos, u_dir):
     Parameters
     ----------
     scene : mcvar.scene.Scene
-        With at least one emitter (the environment is not sampled here).
+        With at least one emitter (an environment map counts: its origins
+        lie on a disk beyond the scene, :class:`LightOrigins`).
     u_pos, u_dir : ndarray, shape (n, 2)
         Uniform numbers in [0, 1]^2.
 
@@ -630,7 +731,8 @@ def sample_le(scene, u_pos, u_dir):
         Solid-angle density of the direction (``cos theta / pi`` one-sided,
         half that two-sided, ``1 / (4 pi)`` for a point light).
     light : ndarray of int, shape (n,)
-        The emitting primitive, or ``-1 - j`` for point light ``j``.
+        The emitting primitive, ``-1 - j`` for point light ``j``, or
+        ``-1 - P`` (``P`` point lights) for the environment map.
 
     Notes
     -----
@@ -640,6 +742,7 @@ def sample_le(scene, u_pos, u_dir):
     """
     s = LightOrigins(scene).sample(u_pos, u_dir)
     light = np.where(s["point"] >= 0, -1 - s["point"], s["prim"])
+    light[s["env"]] = -1 - scene.n_point_lights
     return s["p"], s["w"], s["n"], s["le"], s["pdf_pos"], s["pdf_dir"], light
 
 
@@ -654,10 +757,22 @@ def pdf_le(scene, light, points, directions):
     light = np.asarray(light, dtype=np.int64).reshape(-1)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    point = np.where(light < 0, -1 - light, -1)
+    env = (light == -1 - scene.n_point_lights) & (origins.env_index >= 0)
+    point = np.where((light < 0) & ~env, -1 - light, -1)
     prim = np.maximum(light, 0)
     pdf_pos = origins.pdf_pos(prim)
-    is_point = light < 0
+    is_point = point >= 0
     if np.any(is_point):
         pdf_pos[is_point] = np.take(origins.pmf, origins.prims.size + point[is_point])
-    return pdf_pos, origins.light_pdf_dir(point, prim, points, directions)
+    pdf_dir = np.zeros(light.shape[0])
+    if np.any(~env):
+        pdf_dir[~env] = origins.light_pdf_dir(point[~env], prim[~env], points[~env], directions[~env])
+    if np.any(env):
+        # a point of the disk perpendicular to the direction, at r beyond the centre, of radius r
+        towards = -directions[env]
+        off = points[env] - origins.center - origins.radius * towards
+        on_disk = (np.abs(np.einsum("ij,ij->i", off, towards)) <= 1e-9 * origins.radius) & \
+            (np.einsum("ij,ij->i", off, off) <= origins.radius ** 2 * (1 + 1e-9))
+        pdf_pos[env] = np.where(on_disk, origins.pmf[origins.env_index] * origins.env_pdf_pos, 0.0)
+        pdf_dir[env] = origins.env.pdf(towards)
+    return pdf_pos, pdf_dir

@@ -34,7 +34,9 @@ Measures and conventions (Veach 1997, ch. 8 and 10; pbrt-v4's BDPT):
   Connections to the pinhole (``t = 1``) carry ``We / pdf`` with the
   film-wide importance ``We = 1 / (A cos^4 theta)``, so that with one light
   path per camera path (``W H spp`` of them) the splat sum divided by spp
-  is the image.
+  is the image. The origin of a point-light path is not joined to the
+  pinhole (strategy ``(1, 1)``): a point light has no radiance and the
+  camera cannot see it, as in path tracing (issue 26).
 
 Light tracing is unbiased for every path whose camera end can be connected
 to: a path whose first camera vertex is a delta vertex (the camera sees a
@@ -104,6 +106,12 @@ class Subpath:
         The vertex's BSDF sample came from a Dirac lobe.
     surface : ndarray of bool, shape (D, n)
         The vertex lies on a surface (cosines count in density conversions).
+    infinite : ndarray of bool, shape (D, n)
+        The vertex is a direction, not a point: an environment map's light
+        at infinity (a light subpath's ``y_0``, or the last vertex of a
+        camera subpath that left the scene). Its ``ng`` is the unit
+        direction from the scene towards it; densities of and from it have
+        no ``1 / r^2`` and no cosine at it (pbrt-v4's infinite-light vertices).
     mat, prim : ndarray of int, shape (D, n)
         Material and primitive (-1 at the pinhole and on lights ``y_0``).
     length : ndarray of int, shape (n,)
@@ -123,6 +131,7 @@ class Subpath:
     pdf_rev: np.ndarray
     delta: np.ndarray
     surface: np.ndarray
+    infinite: np.ndarray
     mat: np.ndarray
     prim: np.ndarray
     length: np.ndarray
@@ -145,7 +154,7 @@ class _Levels:
         m = idx.size
         lev = dict(p=np.zeros((m, 3)), ng=np.zeros((m, 3)), beta=np.zeros((m, 3)), pdf_fwd=np.zeros(m),
                    pdf_rev=np.zeros(m), delta=np.zeros(m, bool), surface=np.zeros(m, bool),
-                   mat=np.full(m, -1), prim=np.full(m, -1))
+                   infinite=np.zeros(m, bool), mat=np.full(m, -1), prim=np.full(m, -1))
         pos = np.full(self.n, -1, dtype=np.int64)
         pos[idx] = np.arange(m)
         self.levels.append(lev)
@@ -223,14 +232,32 @@ def _bsdf_eval(scene, flips, mat, ng, wo, wi, need_pdf=True):
     return f, pf, pr
 
 
-def _walk(scene, tracer, flips, lev, first, o, d, beta, pdf_dir, max_vertices, rng, roulette):
+@dataclass(frozen=True)
+class _Walk:
+    """What a random walk needs besides its rays: the scene, its tracer, the
+    materials' normal flips, the vertex cap, Russian roulette, and whether
+    rays that leave the scene become vertices at infinity (camera subpaths
+    under an environment map: BDPT's ``s = 0`` strategy reads them)."""
+
+    scene: object
+    tracer: object
+    flips: np.ndarray
+    max_vertices: int
+    roulette: bool = False
+    escape: bool = False
+
+
+def _walk(ws: _Walk, lev, first, o, d, beta, pdf_dir, rng):
     """Extend subpaths from vertex ``first - 1`` by BSDF sampling (the random walk).
 
     ``o, d`` (m, 3): rays leaving vertex ``first - 1`` of the paths ``idx``
     with solid-angle density ``pdf_dir``; ``beta`` the throughput they carry.
     Fills levels ``first, first + 1, ...`` of ``lev`` and returns
-    ``(length, rays)``.
+    ``(length, rays)``. With ``ws.escape`` a ray that hits nothing ends its
+    path in a vertex at infinity (``infinite``, ``ng`` its direction,
+    ``pdf_fwd`` the solid-angle density: pbrt-v4's escaped camera rays).
     """
+    scene, tracer, flips, max_vertices, roulette = ws.scene, ws.tracer, ws.flips, ws.max_vertices, ws.roulette
     n = lev.n
     eps = float(scene.ray_epsilon)
     idx = np.arange(n)
@@ -242,25 +269,39 @@ def _walk(scene, tracer, flips, lev, first, o, d, beta, pdf_dir, max_vertices, r
     while idx.size and i < max_vertices:
         t, prim = tracer.closest_soa(np.ascontiguousarray(o.T), np.ascontiguousarray(d.T))
         rays += idx.size
-        hit = np.flatnonzero(prim >= 0)
-        if hit.size == 0:
+        keep = np.flatnonzero((prim >= 0) | ws.escape)      # escape: a miss is a vertex too
+        if keep.size == 0:
             break
-        if hit.size < idx.size:
-            idx, o, d, beta, pdf_dir, prev_delta, scale = (a[hit] for a in (idx, o, d, beta, pdf_dir,
-                                                                            prev_delta, scale))
-            t, prim = t[hit], prim[hit]
+        if keep.size < idx.size:
+            idx, o, d, beta, pdf_dir, prev_delta, scale = (a[keep] for a in (idx, o, d, beta, pdf_dir,
+                                                                             prev_delta, scale))
+            t, prim = t[keep], prim[keep]
+        cur = lev.add(idx)
+        length[idx] = i + 1
+        rows = slice(None)
+        if ws.escape and np.any(prim < 0):
+            r = np.flatnonzero(prim < 0)
+            cur["p"][r] = o[r] + d[r]
+            cur["ng"][r] = d[r]
+            cur["beta"][r] = beta[r]
+            cur["infinite"][r] = True
+            cur["pdf_fwd"][r] = np.where(prev_delta[r], 1.0, pdf_dir[r])
+            rows = np.flatnonzero(prim >= 0)       # the rest walk on
+            idx, o, d, beta, pdf_dir, prev_delta, scale = (a[rows] for a in (idx, o, d, beta, pdf_dir,
+                                                                             prev_delta, scale))
+            t, prim = t[rows], prim[rows]
+            if idx.size == 0:
+                break
         p = o + d * t[:, None]
         ng = tracer.normals(prim, p)
         mat = np.take(scene.prim_material, prim)
-        cur = lev.add(idx)
-        cur["p"][:] = p
-        cur["ng"][:] = ng
-        cur["beta"][:] = beta
-        cur["surface"][:] = True
-        cur["mat"][:] = mat
-        cur["prim"][:] = prim
-        cur["pdf_fwd"][:] = np.where(prev_delta, 1.0, pdf_dir * np.abs(_dot(ng, d)) / (t * t))
-        length[idx] = i + 1
+        cur["p"][rows] = p
+        cur["ng"][rows] = ng
+        cur["beta"][rows] = beta
+        cur["surface"][rows] = True
+        cur["mat"][rows] = mat
+        cur["prim"][rows] = prim
+        cur["pdf_fwd"][rows] = np.where(prev_delta, 1.0, pdf_dir * np.abs(_dot(ng, d)) / (t * t))
         if i + 1 >= max_vertices:
             break
         # scatter: sample the BSDF at vertex i
@@ -286,10 +327,10 @@ def _walk(scene, tracer, flips, lev, first, o, d, beta, pdf_dir, max_vertices, r
                     back[ok] = material.pdf(wi_s[ok], wo_l[sel][ok])
                     pdf_back[sel] = back
         wi = fr.s * wi_l[:, 0:1] + fr.n * wi_l[:, 1:2] + fr.t * wi_l[:, 2:3]
-        prev, rows = lev.levels[i - 1], lev.pos[i - 1][idx]
-        cos_prev = np.where(prev["surface"][rows], np.abs(_dot(prev["ng"][rows], d)), 1.0)
-        prev["pdf_rev"][rows] = np.where(dmask, 1.0, pdf_back * cos_prev / (t * t))
-        cur["delta"][:] = dmask
+        prev, prev_rows = lev.levels[i - 1], lev.pos[i - 1][idx]
+        cos_prev = np.where(prev["surface"][prev_rows], np.abs(_dot(prev["ng"][prev_rows], d)), 1.0)
+        prev["pdf_rev"][prev_rows] = np.where(dmask, 1.0, pdf_back * cos_prev / (t * t))
+        cur["delta"][rows] = dmask
         beta = beta * weight
         alive = (beta.max(axis=1) > 0.0) & (pdf > 0.0)
         if roulette and i >= RR_START_DEPTH:
@@ -321,33 +362,74 @@ def camera_subpath(scene, tracer, res, pixel, offsets, max_vertices, rng, roulet
     d = np.ascontiguousarray(cam.ray_directions_soa(res, pixel, offsets).T)
     pdf_dir = cam.pdf_We(d, res)[1]
     o = np.broadcast_to(cam.position, d.shape).copy()
-    length, rays = _walk(scene, tracer, _flips(scene), lev, 1, o, d, np.ones((n, 3)), pdf_dir,
-                         max_vertices, rng, roulette)
+    ws = _Walk(scene, tracer, _flips(scene), max_vertices, roulette, escape=scene.environment is not None)
+    length, rays = _walk(ws, lev, 1, o, d, np.ones((n, 3)), pdf_dir, rng)
     return lev.stack(length, np.full(n, -1), np.asarray(pixel), rays)
 
 
 def light_subpath(scene, tracer, origins: LightOrigins, n, max_vertices, rng, roulette=False) -> Subpath:
-    """Light subpaths ``y_0 .. y_{s-1}`` from :meth:`LightOrigins.sample`."""
+    """Light subpaths ``y_0 .. y_{s-1}`` from :meth:`LightOrigins.sample`.
+
+    An environment origin is a vertex at infinity (``infinite``; pbrt-v4's
+    infinite lights in BDPT): ``y_0`` stands for the direction ``w``
+    towards the map, with ``pdf_fwd = p_choice p(w)`` (solid angle) and
+    ``beta = 1 / pdf_fwd``; ``y_1`` is reached by parallel rays from the
+    disk, so its ``pdf_fwd`` is ``|cos theta_1| / (pi r^2)``, and the
+    reverse density of ``y_0`` is the BSDF's solid-angle density at ``y_1``
+    (no ``1 / r^2``).
+    """
     lev = _Levels(n)
     u = rng.random((n, 4))
     s = origins.sample(u[:, 0:2], u[:, 2:4])
+    env = s["env"]
     y0 = lev.add(np.arange(n))
     y0["p"][:] = s["p"]
-    y0["ng"][:] = s["n"]
-    y0["surface"][:] = s["point"] < 0
+    y0["ng"][:] = np.where(env[:, None], -s["w"], s["n"])
+    y0["surface"][:] = (s["point"] < 0) & ~env
+    y0["infinite"][:] = env
     y0["prim"][:] = s["prim"]
-    y0["pdf_fwd"][:] = s["pdf_pos"]
+    pdf_origin = s["pdf_pos"].copy()
+    if np.any(env):
+        pdf_origin[env] = origins.env_pdf_origin(-s["w"][env])
+    y0["pdf_fwd"][:] = pdf_origin
     with np.errstate(divide="ignore", invalid="ignore"):
-        y0["beta"][:] = np.where(s["pdf_pos"] > 0, 1.0 / s["pdf_pos"], 0.0)[:, None]
-        beta = y0["beta"] * s["le"] * np.where(s["pdf_dir"] > 0, s["cos"] / s["pdf_dir"], 0.0)[:, None]
+        beta0 = np.where(pdf_origin > 0, 1.0 / pdf_origin, 0.0)
+        y0["beta"][:] = beta0[:, None]
+        # the same beta for every origin: le cos / (pdf_pos pdf_dir) (pbrt-v4 SampleLe)
+        beta = s["le"] * np.where((s["pdf_dir"] > 0) & (s["pdf_pos"] > 0),
+                                  s["cos"] / (s["pdf_pos"] * s["pdf_dir"]), 0.0)[:, None]
     length = np.ones(n, dtype=np.int64)
     rays = 0
     if max_vertices > 1:
         eps = float(scene.ray_epsilon)
         o = s["p"] + s["n"] * eps
-        length, rays = _walk(scene, tracer, _flips(scene), lev, 1, o, s["w"], beta, s["pdf_dir"],
-                             max_vertices, rng, roulette)
+        ws = _Walk(scene, tracer, _flips(scene), max_vertices, roulette)
+        length, rays = _walk(ws, lev, 1, o, s["w"], beta, s["pdf_dir"], rng)
+        if np.any(env) and len(lev.levels) > 1:
+            _at_infinity(lev, np.flatnonzero(env), origins.env_pdf_pos, eps)
     return lev.stack(length, s["point"], np.full(n, -1), rays)
+
+
+def _at_infinity(lev, paths, pdf_disk, eps):
+    """Densities next to an environment origin ``y_0`` of ``paths`` (pbrt-v4's
+    correction for infinite lights): ``pdf_fwd(y_1) = |cos theta_1| pdf_disk``
+    (parallel rays, area density ``pdf_disk`` across them) and the reverse
+    density of ``y_0`` in solid angle (the walk converted it with the distance
+    to the disk, which is not part of the path: the ray started ``eps``
+    beyond the disk point along its direction)."""
+    y0, y1 = lev.levels[0], lev.levels[1]
+    rows1 = lev.pos[1][paths]
+    reached = rows1 >= 0
+    paths, rows1 = paths[reached], rows1[reached]
+    if paths.size == 0:
+        return
+    rows0 = lev.pos[0][paths]
+    d = y1["p"][rows1] - y0["p"][rows0]
+    r2 = (np.sqrt(np.einsum("ij,ij->i", d, d)) - eps) ** 2
+    cos1 = np.abs(np.einsum("ij,ij->i", y1["ng"][rows1], y0["ng"][rows0]))
+    y1["pdf_fwd"][rows1] = cos1 * pdf_disk
+    # the walk stored pdf_back * 1 / r^2 (y_0 is no surface), or 1 next to a delta vertex
+    y0["pdf_rev"][rows0] = np.where(y1["delta"][rows1], 1.0, y0["pdf_rev"][rows0] * r2)
 
 
 # ---------------------------------------------------------------------------
@@ -394,9 +476,21 @@ def _connect_camera(ctx, L, s, mis_weight=None):
     il = np.flatnonzero(L.length >= s)
     if s >= 2:
         il = il[~ctx.delta_mat[L.mat[s - 1, il]]]
+    else:
+        # a point light is not seen by the camera (no area, no radiance: a
+        # camera ray hits it with probability zero, as in path tracing,
+        # Mitsuba 3 and pbrt-v4); splatting I / r^2 at its pixel would add
+        # an image that no other method renders (issue 26)
+        il = il[L.point[il] < 0]
     if il.size == 0:
         return il, il, np.zeros((0, 3)), np.zeros(0)
     q = s - 1
+    if s == 1 and np.any(L.infinite[0, il]):
+        inf = L.infinite[0, il]
+        parts = [_connect_camera_at_infinity(ctx, L, il[inf], mis_weight)]
+        if not np.all(inf):
+            parts.append(_connect_camera(ctx, _Only(L, il[~inf]), 1, mis_weight))
+        return tuple(np.concatenate(a) for a in zip(*parts))
     pq, nq, surf = L.p[q, il], L.ng[q, il], L.surface[q, il]
     wi, dist, we, pdf, xy, visible = cam.sample_Wi(pq, ctx.res)
     cos_q = _cos(surf, nq, wi)
@@ -408,7 +502,9 @@ def _connect_camera(ctx, L, s, mis_weight=None):
         wo, r_m = _unit(pm - pq)
         f, _, pdf_back = _bsdf_eval(scene, ctx.flips, L.mat[q, il], nq, wo, wi, need_pdf=weighted)
         if weighted:
-            over[("L", q - 1)] = pdf_back * _cos(L.surface[q - 1, il], L.ng[q - 1, il], wo) / (r_m * r_m)
+            # no distance to a vertex at infinity (an environment origin y_0)
+            r2 = np.where(L.infinite[q - 1, il], 1.0, r_m * r_m)
+            over[("L", q - 1)] = pdf_back * _cos(L.surface[q - 1, il], L.ng[q - 1, il], wo) / r2
     with np.errstate(divide="ignore", invalid="ignore"):
         value = L.beta[q, il] * f * np.where(visible, cos_q * we / pdf, 0.0)[:, None]
     go = np.flatnonzero(value.max(axis=1) > 0.0)
@@ -426,6 +522,50 @@ def _connect_camera(ctx, L, s, mis_weight=None):
     over[("L", q)] = cam.pdf_We(-wi, ctx.res)[1] * cos_q / (dist * dist)
     weight = mis_weight(ctx, L, None, s, 1, il, None, over)
     return il, pixel, value, weight
+
+
+class _Only:
+    """A light subpath seen through a mask: only the paths ``keep`` reach
+    ``y_0`` (``length`` 0 elsewhere); every other field is the subpath's."""
+
+    def __init__(self, L, keep):
+        self._L = L
+        self.length = np.zeros_like(L.length)
+        self.length[keep] = L.length[keep]
+
+    def __getattr__(self, name):
+        return getattr(self._L, name)
+
+
+def _connect_camera_at_infinity(ctx, L, il, mis_weight=None):
+    """Strategy (1, 1) for environment origins: the camera ray along ``w``
+    towards the map (``y_0`` is the direction ``w``, ``L.ng``).
+
+    The measurement ``int We L cos theta_c d omega`` of the map seen directly,
+    with ``w`` drawn by the origin's density ``p_choice p(w)``: the splat
+    ``beta_0 L(w) We(w) cos theta_c`` (``beta_0 = 1 / (p_choice p(w))``) at
+    the pixel of ``w``, if the camera ray along ``w`` leaves the scene (the
+    particle tracer's 'visible emitters' of Mitsuba 3, made from the light
+    path's own origin). With MIS its alternative is the camera ray that
+    escapes (``s = 0``, density ``pdf_We(w)`` in the same measure).
+    """
+    cam = ctx.scene.camera
+    towards = L.ng[0, il]
+    xy, visible, cos_c = cam._raster(ctx.res, towards)
+    we = cam.We(towards, ctx.res)
+    value = L.beta[0, il] * ctx.em.light_le(L.point[il], L.prim[0, il], L.p[0, il], -towards) * \
+        np.where(visible, we * cos_c, 0.0)[:, None]
+    go = np.flatnonzero(value.max(axis=1) > 0.0)
+    il, xy, value, towards = il[go], xy[go], value[go], towards[go]
+    if il.size:
+        o = np.ascontiguousarray(np.broadcast_to(cam.position, (il.size, 3)).T)
+        ok = ~ctx.tracer.occluded_soa(o, np.ascontiguousarray(towards.T), np.full(il.size, np.inf))
+        il, xy, value, towards = il[ok], xy[ok], value[ok], towards[ok]
+    pixel = cam.pixel_index(xy, ctx.res)
+    if mis_weight is None:
+        return il, pixel, value, np.ones(il.size)
+    over = {("L", 0): cam.pdf_We(towards, ctx.res)[1]}
+    return il, pixel, value, mis_weight(ctx, L, None, 1, 1, il, None, over)
 
 
 # ---------------------------------------------------------------------------
@@ -458,19 +598,17 @@ def light_tracing_splats(scene, tracer, origins, res, n_paths, rng, max_depth=No
 def check_scene(scene, options=None, method="light transport"):
     """Raise ``ValueError`` naming what light tracing / BDPT cannot handle in ``scene``.
 
-    Light subpaths start on emitters: a scene needs an emitting primitive or
-    a point light; an environment map (light from infinitely far away) is
-    not sampled as a light-path origin here (pbrt samples a disk beyond the
-    scene's bounds; not implemented).
+    Light subpaths start on emitters: a scene needs an emitting primitive, a
+    point light or an environment map with some radiance (light from
+    infinitely far away starts on a disk that covers the scene:
+    :class:`~mcvar.integrators.emitters.LightOrigins`).
     """
-    if scene.environment is not None:
-        raise ValueError(f"{method} cannot handle scene {scene.name!r}: it has an environment map, which "
-                         "light subpaths cannot start from (only emitting surfaces and point lights)")
     has_emission = bool(np.any(scene.prim_emission > 0.0))
     has_points = bool(np.any(scene.point_light_intensity > 0.0))
-    if not (has_emission or has_points):
-        raise ValueError(f"{method} needs a light: scene {scene.name!r} has no emitting surface and no "
-                         "point light")
+    has_env = scene.environment is not None and bool(np.any(scene.environment.image > 0.0))
+    if not (has_emission or has_points or has_env):
+        raise ValueError(f"{method} needs a light: scene {scene.name!r} has no emitting surface, no "
+                         "point light and no environment map with radiance")
 
 
 def run_light_batch(job: BatchJob) -> BatchResult:
@@ -495,4 +633,6 @@ def _check_light(scene, options):
 register(Method(
     "light", "splat", run_light_batch,
     "light (particle) tracing: light paths, every vertex connected to the pinhole and splatted",
-    check_scene=_check_light))
+    check_scene=_check_light, chart_row="Path Tracing",
+    theory=("yes", "yes", "light tracing is path tracing started at the lights: with Russian roulette unbiased "
+                          "and consistent")))

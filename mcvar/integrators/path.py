@@ -413,4 +413,12 @@ for _name, _mode in _MODES.items():
                              "visible_lights": "sampled", "rr_threshold": 1.0},
                     check_scene=_check_kernel,
                     lecture=_LECTURE.get(_name),
-                    fixed_depth=_mode.depth))
+                    fixed_depth=_mode.depth,
+                    **(dict(chart_row="Path Tracing",
+                            theory=("yes", "yes", "with Russian roulette path tracing is unbiased (and so "
+                                    "consistent), not 'almost': every path length is kept, its probability "
+                                    "divided out"),
+                            chart_depths={3: ("no", "no", "a fixed depth (3) drops the light of longer paths: "
+                                              "biased, and the MSE levels off at that bias, so not consistent "
+                                              "either")})
+                       if _name == "path" else {})))

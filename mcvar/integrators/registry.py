@@ -7,7 +7,7 @@ and the contract suite (``tests/test_integrator_contract.py``) find it in
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping
 
 __all__ = ["KINDS", "METHODS", "Method", "register", "get_method"]
@@ -56,6 +56,20 @@ class Method:
         The method's own depth (the ``direct*`` methods: 2); ``max_depth``
         must then be None or equal to it. (An addition to the API of
         /work/status/API.md, default None.)
+    chart_row : str or None
+        The row of the lecture's 'Rendering Algorithm Chart' the method
+        answers (``'Path Tracing'``, ``'Photon Mapping'`` ...): ``mcvar chart``
+        measures it. None: not in the chart, unless it has a ``knob`` and a
+        ``lecture`` claim (then it is a row of its own).
+    knob : Knob or None
+        Its accuracy knob for the chart (:class:`mcvar.integrators.knobs.Knob`);
+        None: samples per pixel.
+    theory : tuple or None
+        ``(consistent, unbiased, why)`` theory says, measured with its knob;
+        ``why`` is the chart's note where the measurement differs from the lecture.
+    chart_depths : mapping
+        Fixed depths also measured as chart rows ``'name:depth'``, each with
+        its theory tuple (``path``: ``{3: ('no', 'no', ...)}``).
     """
 
     name: str
@@ -68,6 +82,10 @@ class Method:
     uses_max_depth: bool = True
     lecture: tuple | None = None
     fixed_depth: int | None = None
+    chart_row: str | None = None
+    knob: object | None = None
+    theory: tuple | None = None
+    chart_depths: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name.isidentifier():
@@ -81,6 +99,13 @@ class Method:
             if value is not None and not callable(value):
                 raise TypeError(f"Method.{key} must be callable or None; got {type(value).__name__}")
         object.__setattr__(self, "options", dict(self.options))
+        object.__setattr__(self, "chart_depths", dict(self.chart_depths))
+        if self.theory is not None and len(self.theory) != 3:
+            raise ValueError(f"Method.theory must be (consistent, unbiased, why); got {self.theory!r}")
+
+    def replace(self, **changes) -> "Method":
+        """A copy with ``changes`` (:func:`dataclasses.replace`), e.g. chart fields added."""
+        return replace(self, **changes)
 
     def resolve_options(self, given: Mapping) -> dict:
         """The method's options: defaults updated with ``given``; an unknown key is a ValueError."""
