@@ -54,33 +54,37 @@ def _cmd_samplers(args) -> int:
 def _cmd_render(args) -> int:
     from .images import write_image
     from .integrators import render
+    from .integrators.registry import get_method, pop_method_name
     from .scene import load_scene
 
+    name = pop_method_name({} if args.integrator is None else {"integrator": args.integrator}, args.method,
+                           "mcvar render (--method, --integrator)")
+    method = get_method(name)
     options = {}
     if args.strategies is not None:
-        if args.integrator != "bdpt":
+        if method.name != "bdpt":
             raise ValueError("--strategies writes the (s, t) strategy images of bidirectional path tracing: "
-                             f"it needs --integrator bdpt, not {args.integrator!r}")
+                             f"it needs --method bdpt, not {method.name!r}")
         options["strategies"] = True
     scene = load_scene(args.scene)
-    _scene_file_defaults(args, scene)
+    _scene_file_defaults(args, scene, method.name)
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out must name an image file (.npy, .png, .exr, .hdr); {str(out)!r} is a directory")
     # estimator options of the path methods, only when asked for (other methods do not take them)
     tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
                                 ("rr_depth", args.rr_depth)) if v is not None}
-    if _adaptive_default(args):
-        from .adaptive import render_adaptive
+    common = dict(method=method.name, spp=args.spp, res=args.res, sampler=args.sampler, rng=args.seed,
+                  max_depth=args.max_depth, heuristic=args.heuristic, progress=not args.quiet)
+    if _adaptive_default(args, method):
+        from .adaptive import adaptive_settings
 
         # the most efficient unbiased configuration (docs/performance.md)
-        result = render_adaptive(scene, integrator=args.integrator, spp=args.spp, res=args.res,
-                                 sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                                 heuristic=args.heuristic, workers=_adaptive_workers(args.workers),
-                                 progress=not args.quiet, **tuning)
+        result = render(scene, allocation="adaptive", workers=_adaptive_workers(args.workers),
+                        **common, **{**adaptive_settings(method), **tuning})
     else:
-        result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
-                        sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                        heuristic=args.heuristic, batch_spp=args.batch_spp,
-                        workers=1 if args.workers is None else args.workers, progress=not args.quiet,
-                        **options, **tuning)
+        result = render(scene, batch_spp=args.batch_spp,
+                        workers=1 if args.workers is None else args.workers, **common, **options, **tuning)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
@@ -93,7 +97,7 @@ def _cmd_render(args) -> int:
     return 0
 
 
-def _scene_file_defaults(args, scene) -> None:
+def _scene_file_defaults(args, scene, method: str) -> None:
     """Fill the options the command line left out (None) from what a scene file says
     (``Scene.render_defaults``: film size, sample count, path depth, roulette depth),
     else the built-in defaults (64 x 64 pixels, 16 spp)."""
@@ -104,9 +108,9 @@ def _scene_file_defaults(args, scene) -> None:
         args.res = given.get("res", 64)
     if args.spp is None:
         args.spp = given.get("spp", 16)
-    if args.max_depth is None and args.integrator in ("path", "path_bsdf", "light", "bdpt"):
+    if args.max_depth is None and method in ("path", "path_bsdf", "light", "bdpt"):
         args.max_depth = given.get("max_depth")
-    method = METHODS.get(args.integrator)
+    method = METHODS.get(method)
     if args.rr_depth is None and "rr_depth" in given and method is not None and "rr_depth" in method.options:
         args.rr_depth = given["rr_depth"]
 
@@ -118,13 +122,12 @@ def _adaptive_workers(workers):
     return min(2, os.cpu_count() or 1) if workers is None else workers
 
 
-def _adaptive_default(args) -> bool:
-    """``mcvar render`` renders adaptively (mcvar.adaptive) unless ``--uniform``,
-    a first-hit integrator, ``--batch-spp``, a square-only sampler or fewer
-    than 16 spp (the pilot would be too small to allocate by) say otherwise."""
-    from .adaptive import ADAPTIVE_INTEGRATORS
-
-    return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
+def _adaptive_default(args, method) -> bool:
+    """``mcvar render`` renders with ``allocation='adaptive'`` unless ``--uniform``,
+    a method that is not camera-kind, ``--batch-spp``, a square-only sampler
+    or fewer than 16 spp (the pilot would be too small to allocate by) say
+    otherwise."""
+    return (not args.uniform and method.kind == "camera" and args.batch_spp is None
             and not _square_sampler(args.sampler) and args.spp >= 16)
 
 
@@ -257,7 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_samplers)
 
     p = sub.add_parser("render", parents=[quiet], help="render one image of a scene",
-                       description="Render a scene with one integrator and sampler. .npy holds "
+                       description="Render a scene with one method and sampler. .npy holds "
                                    "linear radiance (H, W, 3), row 0 at the top; .png is tonemapped "
                                    "to sRGB; .exr is linear. Ctrl-C keeps the spp finished so far.")
     p.add_argument("scene", help="scene name (cornell, cornell-spheres, checkerboard, furnace, quad-environment, "
@@ -266,9 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "scene file's film)")
     p.add_argument("--spp", type=int, default=None, help="samples per pixel (default 16, or a scene file's "
                                                          "sample_count)")
-    p.add_argument("--integrator", default="path",
+    p.add_argument("--method", default=None,
                    help=_RegistryHelp("rendering method, any of mcvar.integrators.METHODS: {methods} "
                                       "(default path: NEE + MIS)", "methods"))
+    p.add_argument("--integrator", default=None, help="alias of --method")
     p.add_argument("--sampler", default="sobol",
                    help=_RegistryHelp("pixel sampler, any of mcvar.samplers.SAMPLERS: {samplers} (default sobol; "
                                       "the previous default was random)", "samplers"))
@@ -281,12 +285,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="processes to spread batches over (default: 2 for adaptive renders, the "
                         "caller and one more; 1 with --uniform, the previous behaviour)")
     p.add_argument("--strategies", type=Path, default=None, metavar="DIR",
-                   help="with --integrator bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
+                   help="with --method bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
                         "to DIR (s{s}_t{t}.npy, linear) and their grid (strategies.png)")
     p.add_argument("--uniform", action="store_true",
-                   help="the same spp in every pixel (the previous behaviour); default for path/direct "
-                        "integrators at >= 16 spp: unbiased adaptive sampling (a pilot decides where "
-                        "the samples go, docs/performance.md)")
+                   help="the same spp in every pixel (the previous behaviour); default for camera-kind "
+                        "methods (path, direct, ...) at >= 16 spp: unbiased adaptive sampling (a pilot "
+                        "decides where the samples go, docs/performance.md)")
     p.add_argument("--visible-lights", choices=("exact", "sampled"), default=None,
                    help="lights seen directly by the camera: their exact pixel integral plus sampled "
                         "differences (a control variate; default for adaptive renders) or plain sampling "

@@ -951,10 +951,6 @@ def pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) ->
     return out[:d]
 
 
-#: Former private name of :func:`pixel_sample_columns` (``mcvar.adaptive`` reads it until it moves).
-_pixel_sample_columns = pixel_sample_columns
-
-
 # --------------------------------------------------------------------------
 # The registry: one record per sampler
 # --------------------------------------------------------------------------

@@ -158,7 +158,7 @@ def test_the_function_walker_counts_keyword_only_and_star_arguments(tmp_path):
 
 #: Module-level caches still owned by the render driver's half of issue 20 (helper drv
 #: moves them into the render / the worker pool); delete an entry once it is gone.
-PENDING_CACHES = {"mcvar/adaptive.py:_TRACERS", "mcvar/integrators/driver.py:_TRACER_CACHE"}
+PENDING_CACHES: set = set()
 #: Memoized pure tables (a function of their argument only, read-only arrays) and the
 #: version of the on-disk run cache: not state.
 PURE_TABLES = {"mcvar/testing/_domains.py:_gauss_legendre", "mcvar/experiments/runs.py:CACHE_VERSION"}

@@ -635,4 +635,5 @@ register(Method(
     "light (particle) tracing: light paths, every vertex connected to the pinhole and splatted",
     check_scene=_check_light, chart_row="Path Tracing",
     theory=("yes", "yes", "light tracing is path tracing started at the lights: with Russian roulette unbiased "
-                          "and consistent")))
+                          "and consistent"),
+    stream_dims=0))

@@ -556,4 +556,5 @@ register(Method(
     # the chart: more photons at a fixed gather radius (the blur stays)
     knob=scaled_knob("photons (x 2048, radius 40)", "photon", {"photons": (2048, 1)}, {"spp": 4, "radius": 40.0}),
     theory=("no", "no", "at a fixed radius the density estimate keeps its blur whatever the photon count: "
-                        "photon mapping is consistent only progressively (sppm)")))
+                        "photon mapping is consistent only progressively (sppm)"),
+    stream_dims=2))

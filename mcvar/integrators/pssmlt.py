@@ -311,4 +311,5 @@ register(Method("pssmlt", "chain", run_batch,
                 options=OPTIONS, check_scene=_check_options, lecture=("yes", "yes"),
                 chart_row="Metropolis Light Transport",
                 theory=("yes", "no", "MLT's start-up bias: each chain starts from a bootstrap sample, not from "
-                                     "its stationary distribution; the bias vanishes as the chains grow")))
+                                     "its stationary distribution; the bias vanishes as the chains grow"),
+                stream_dims=0))
