@@ -213,8 +213,27 @@ class SceneReference:
     cached: bool = False
 
 
+_CODE_KEY = []
+
+
+def _code_key() -> str:
+    """A hash of the renderer's source (integrators, scene, tracer, BSDFs, environment maps): a
+    reference cached by other code is not reused."""
+    if not _CODE_KEY:
+        root = Path(__file__).resolve().parents[1]
+        files = sorted(p for pattern in ("integrators/*.py", "scene*.py", "scene*/*.py", "tracer.py", "bsdf.py",
+                                         "envmap.py", "optics.py", "warps.py", "samplers.py")
+                       for p in root.glob(pattern))
+        digest = hashlib.sha256()
+        for f in files:
+            digest.update(f.name.encode() + f.read_bytes())
+        _CODE_KEY.append(digest.hexdigest()[:16])
+    return _CODE_KEY[0]
+
+
 def _reference_key(scene, res, method, spp, chunks, seed, options) -> str:
-    text = json.dumps(dict(v=_CACHE_VERSION, scene=scene, res=res, method=method, spp=spp, chunks=chunks,
+    text = json.dumps(dict(v=_CACHE_VERSION, code=_code_key(), scene=scene, res=res, method=method, spp=spp,
+                           chunks=chunks,
                            seed=seed, options=sorted((k, repr(v)) for k, v in options.items())), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
@@ -238,8 +257,8 @@ def scene_reference(scene: str, res: int, *, method: str | None = None, spp: int
         Seed of the reference's streams.
     cache_dir : path, optional
         Folder of ``reference-<scene>-<key>.npz``; the key hashes scene, res,
-        method, spp, chunks, seed and the method's options, so a change of any
-        renders a new reference.
+        method, spp, chunks, seed, the method's options and the renderer's
+        source, so a change of any renders a new reference.
     """
     from ..scene import load_scene
 
