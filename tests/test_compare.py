@@ -245,7 +245,8 @@ def test_point_light_pair_path_bsdf_is_black_and_pairs_go_to_the_page(tmp_path):
     # BSDF sampling alone never hits a point light: exactly black, where path tracing is not
     assert np.all(point.cells[("cornell-point", "path_bsdf")].image == 0)
     assert point.cells[("cornell-point", "path_bsdf")].mean_ratio == 0.0
-    assert point.cells[("cornell-point", "path")].mean_ratio > 0.5
+    # path tracing reaches it through next-event estimation: most pixels see a lit surface
+    assert np.count_nonzero(point.cells[("cornell-point", "path")].image.sum(axis=-1)) > RES * RES // 2
     assert pairs["caustic"].rows()[0]["region"] == cmp._region_text(cmp.CAUSTIC_REGION)
     with pytest.raises(ValueError, match="pairs"):
         cmp.measure_pairs(seconds=0.05, pairs=["teleport"])
