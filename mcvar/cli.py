@@ -238,6 +238,33 @@ class _RegistryHelp(str):
         return str.__mod__(str(self).replace("{" + self.what + "}", names.replace("%", "%%")), params)
 
 
+def _add_compare_parser(sub, quiet) -> None:
+    """The ``mcvar compare`` subcommand (issue 21)."""
+    p = sub.add_parser("compare", parents=[quiet], help="every method on every scene at equal wall time",
+                       description="Render every method on every scene for the same wall time (rounds of "
+                                   "spp until --seconds are spent), compare each image with one shared "
+                                   "high-spp reference per scene (cached in OUT/.cache), and write "
+                                   "compare.csv (median spp, seconds, MSE, efficiency 1 / (MSE x time) over "
+                                   "the seeds), compare.png (methods x scenes, the winner of each column "
+                                   "framed) and compare.html. Ctrl-C writes the cells finished so far.")
+    p.add_argument("--scenes", type=_name_list, default=["cornell"],
+                   help=_RegistryHelp("comma-separated scenes: {scenes} (default cornell)", "scenes"))
+    p.add_argument("--methods", type=_name_list, default=None,
+                   help=_RegistryHelp("comma-separated registered methods: {methods} (default "
+                                      "path,path_bsdf,direct,light,bdpt,pssmlt,photon,sppm,radiosity: "
+                                      "mcvar.experiments.compare.DEFAULT_METHODS, those registered)", "methods"))
+    p.add_argument("--seconds", type=float, default=2.0, help="wall time per method, scene and seed (default 2)")
+    p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
+    p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    p.add_argument("--pairs", action="store_true",
+                   help="also the lecture's pairs at equal time (path / path_bsdf / light at the point light, "
+                        "path / pssmlt on cornell-door, path / sppm on cornell-spheres' caustic) and radiosity's "
+                        "second view from one solve: pairs.csv, radiosity_views.csv")
+    p.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder (default out/compare)")
+    p.set_defaults(func=_cmd_compare)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mcvar", description="Monte Carlo estimation and its variance, measured.")
@@ -365,29 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)
 
-    p = sub.add_parser("compare", parents=[quiet], help="every method on every scene at equal wall time",
-                       description="Render every method on every scene for the same wall time (rounds of "
-                                   "spp until --seconds are spent), compare each image with one shared "
-                                   "high-spp reference per scene (cached in OUT/.cache), and write "
-                                   "compare.csv (median spp, seconds, MSE, efficiency 1 / (MSE x time) over "
-                                   "the seeds), compare.png (methods x scenes, the winner of each column "
-                                   "framed) and compare.html. Ctrl-C writes the cells finished so far.")
-    p.add_argument("--scenes", type=_name_list, default=["cornell"],
-                   help=_RegistryHelp("comma-separated scenes: {scenes} (default cornell)", "scenes"))
-    p.add_argument("--methods", type=_name_list, default=None,
-                   help=_RegistryHelp("comma-separated registered methods: {methods} (default "
-                                      "path,path_bsdf,direct,light,bdpt,pssmlt,photon,sppm,radiosity: "
-                                      "mcvar.experiments.compare.DEFAULT_METHODS, those registered)", "methods"))
-    p.add_argument("--seconds", type=float, default=2.0, help="wall time per method, scene and seed (default 2)")
-    p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
-    p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
-    p.add_argument("--pairs", action="store_true",
-                   help="also the lecture's pairs at equal time (path / path_bsdf / light at the point light, "
-                        "path / pssmlt on cornell-door, path / sppm on cornell-spheres' caustic) and radiosity's "
-                        "second view from one solve: pairs.csv, radiosity_views.csv")
-    p.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder (default out/compare)")
-    p.set_defaults(func=_cmd_compare)
+    _add_compare_parser(sub, quiet)
     return parser
 
 

@@ -244,40 +244,41 @@ def write_compare(result: CompareResult, out, *, command: str | None = None, pai
     return {"html": paths.pop("html"), **paths}
 
 
-def compare_report(out, *, scenes, methods=None, seconds: float, res: int = 32, seeds: int = 3, seed: int = 0,
-                   progress: bool = True, command: str | None = None, pairs: bool = False,
-                   **settings) -> dict[str, Path]:
+def compare_report(out, settings=None, *, scenes=None, methods=None, progress: bool = True,
+                   command: str | None = None, pairs: bool = False, **fields) -> dict[str, Path]:
     """Measure the matrix (:func:`~mcvar.experiments.compare.measure_compare`) and write it into ``out``.
 
-    References are cached in ``out/.cache`` (a second run renders none).
-    ``settings`` (``references``, ``reference_spp``, ``regions``,
-    ``options``) go to :func:`~mcvar.experiments.compare.measure_compare`.
-    Ctrl-C writes the cells finished so far. ``pairs=True`` measures the
-    slide pairs too (:func:`~mcvar.experiments.compare.measure_pairs`, the
-    same references) and radiosity's two views of one solve.
+    ``settings`` (a :class:`~mcvar.experiments.compare.CompareSettings`),
+    ``scenes``, ``methods`` and ``fields`` (``seconds``, ``res``, ``seeds``,
+    ``seed``, ``references``, ``reference_spp``, ``regions``, ``options``)
+    say what to measure. References are cached in ``out/.cache`` (a second
+    run renders none). Ctrl-C writes the cells finished so far.
+    ``pairs=True`` measures the slide pairs too
+    (:func:`~mcvar.experiments.compare.measure_pairs`, the same references)
+    and radiosity's two views of one solve.
 
     Returns
     -------
     dict of str to Path
-        ``html``, ``csv``, ``runs``, ``png``.
+        ``html``, ``csv``, ``runs``, ``png`` (and ``pairs``, ``views``).
     """
-    from .experiments.compare import check_compare_args
+    from .experiments.compare import check_compare_args, compare_settings
 
     if not isinstance(out, (str, os.PathLike)) or str(out) == "":
         raise TypeError(f"out must be a folder path; got {out!r}")
-    check_compare_args(scenes, methods if methods is not None else ["path"], seconds, res, seeds)
+    st = compare_settings(settings, scenes, methods, **fields)
+    check_compare_args(st.scenes, st.methods if st.methods is not None else ["path"], st.seconds, st.res, st.seeds)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"out must be a folder; {out} exists and is not one")
     out.mkdir(parents=True, exist_ok=True)
-    result = measure_compare(scenes, methods, seconds=seconds, res=res, seeds=seeds, seed=seed,
-                             cache_dir=out / ".cache", progress=progress, **settings)
+    result = measure_compare(settings=st, cache_dir=out / ".cache", progress=progress)
     measured, views = None, None
     if pairs and not result.interrupted:
         try:
-            measured = measure_pairs(seconds=seconds, res=res, seeds=seeds, seed=seed, cache_dir=out / ".cache",
-                                     progress=progress)
-            views = radiosity_views("cornell", res=res, seed=seed, cache_dir=out / ".cache")
+            measured = measure_pairs(seconds=st.seconds, res=st.res, seeds=st.seeds, seed=st.seed,
+                                     cache_dir=out / ".cache", progress=progress)
+            views = radiosity_views("cornell", res=st.res, seed=st.seed, cache_dir=out / ".cache")
         except KeyboardInterrupt:
             pass
     return write_compare(result, out, command=command, pairs=measured, views=views)

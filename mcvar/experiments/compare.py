@@ -65,7 +65,7 @@ from .chart import emitter_pixels
 
 __all__ = ["DEFAULT_METHODS", "REFERENCES", "COMPARE_OPTIONS", "PROGRESSIVE", "REUSE_PREPARED",
            "COMPARE_COLUMNS", "RUN_COLUMNS", "SceneReference", "TimedRender", "Cell", "CompareResult",
-           "check_compare_args", "scene_reference", "equal_time_render", "measure_compare",
+           "CompareSettings", "compare_settings", "check_compare_args", "scene_reference", "equal_time_render", "measure_compare",
            "radiosity_views", "compare_scenes", "compare_methods", "CAUSTIC_REGION", "PAIRS", "measure_pairs"]
 
 #: The light-transport methods measured by default (those registered, in this order).
@@ -112,7 +112,8 @@ COMPARE_COLUMNS = ("scene", "method", "reference_method", "region", "reference_n
 RUN_COLUMNS = ("scene", "method", "seed", "spp", "seconds", "rounds", "max_round_seconds", "mse", "mean_ratio",
                "interrupted")
 
-_CACHE_VERSION = 2
+#: Version of the cached reference files' layout (part of their key).
+_REFERENCE_FORMAT = 2
 
 
 def _render(scene, **kwargs):
@@ -214,26 +215,21 @@ class SceneReference:
     cached: bool = False
 
 
-_CODE_KEY = []
-
-
 def _code_key() -> str:
     """A hash of the renderer's source (integrators, scene, tracer, BSDFs, environment maps): a
-    reference cached by other code is not reused."""
-    if not _CODE_KEY:
-        root = Path(__file__).resolve().parents[1]
-        files = sorted(p for pattern in ("integrators/*.py", "scene*.py", "scene*/*.py", "tracer.py", "bsdf.py",
-                                         "envmap.py", "optics.py", "warps.py", "samplers.py")
-                       for p in root.glob(pattern))
-        digest = hashlib.sha256()
-        for f in files:
-            digest.update(f.name.encode() + f.read_bytes())
-        _CODE_KEY.append(digest.hexdigest()[:16])
-    return _CODE_KEY[0]
+    reference cached by other code is not reused (read once per reference, a few ms)."""
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(p for pattern in ("integrators/*.py", "scene*.py", "scene*/*.py", "tracer.py", "bsdf.py",
+                                     "envmap.py", "optics.py", "warps.py", "samplers.py")
+                   for p in root.glob(pattern))
+    digest = hashlib.sha256()
+    for f in files:
+        digest.update(f.name.encode() + f.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def _reference_key(scene, res, method, spp, chunks, seed, options) -> str:
-    text = json.dumps(dict(v=_CACHE_VERSION, code=_code_key(), scene=scene, res=res, method=method, spp=spp,
+    text = json.dumps(dict(v=_REFERENCE_FORMAT, code=_code_key(), scene=scene, res=res, method=method, spp=spp,
                            chunks=chunks,
                            seed=seed, options=sorted((k, repr(v)) for k, v in options.items())), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
@@ -519,12 +515,11 @@ def _region_slices(region, res):
     return rows, cols
 
 
-def measure_compare(scenes, methods=None, *, seconds: float, res: int = 32, seeds: int = 3, seed: int = 0,
-                    cache_dir=None, progress: bool = True, references=None, reference_spp=None,
-                    regions=None, options=None) -> CompareResult:
-    """Every method on every scene at equal wall time, against one shared reference per scene.
+@dataclass(frozen=True)
+class CompareSettings:
+    """What :func:`measure_compare` measures (the fields are its keyword settings).
 
-    Parameters
+    Attributes
     ----------
     scenes, methods : str (comma-separated) or sequence of str
         Scene names (:func:`compare_scenes`) and registered methods (default
@@ -537,10 +532,6 @@ def measure_compare(scenes, methods=None, *, seconds: float, res: int = 32, seed
         Independent runs per cell; the cell reports the medians.
     seed : int
         Root seed (runs and references derive their streams from it and the names).
-    cache_dir : path, optional
-        Where the references are cached (:func:`scene_reference`).
-    progress : bool
-        A tqdm bar over the runs.
     references, reference_spp : dict, optional
         Per scene: reference method and total spp instead of :data:`REFERENCES`.
     regions : dict, optional
@@ -548,6 +539,50 @@ def measure_compare(scenes, methods=None, *, seconds: float, res: int = 32, seed
         MSE is measured in (a caustic, say); default the whole image.
     options : dict, optional
         Per method: options that update :data:`COMPARE_OPTIONS`.
+    """
+
+    scenes: object = ("cornell",)
+    methods: object = None
+    seconds: float = 2.0
+    res: int = 32
+    seeds: int = 3
+    seed: int = 0
+    references: object = None
+    reference_spp: object = None
+    regions: object = None
+    options: object = None
+
+
+def compare_settings(settings=None, scenes=None, methods=None, **fields) -> CompareSettings:
+    """``settings`` (default :class:`CompareSettings`) with the given fields replaced (None keeps
+    a field); an unknown field is a TypeError naming it."""
+    if settings is None:
+        settings = CompareSettings()
+    elif not isinstance(settings, CompareSettings):
+        raise TypeError(f"settings must be a CompareSettings; got {type(settings).__name__}")
+    known = {f.name for f in dataclasses.fields(CompareSettings)}
+    unknown = sorted(set(fields) - known)
+    if unknown:
+        raise TypeError(f"unknown compare setting(s) {unknown}; the settings are {sorted(known)}")
+    changes = {k: v for k, v in dict(fields, scenes=scenes, methods=methods).items() if v is not None}
+    return dataclasses.replace(settings, **changes)
+
+
+def measure_compare(scenes=None, methods=None, settings=None, *, cache_dir=None, progress: bool = True,
+                    **fields) -> CompareResult:
+    """Every method on every scene at equal wall time, against one shared reference per scene.
+
+    Parameters
+    ----------
+    scenes, methods, settings, **fields
+        What to measure: a :class:`CompareSettings` and/or its fields
+        (``seconds``, ``res``, ``seeds``, ``seed``, ``references``,
+        ``reference_spp``, ``regions``, ``options``; ``scenes`` and
+        ``methods`` also by position).
+    cache_dir : path, optional
+        Where the references are cached (:func:`scene_reference`).
+    progress : bool
+        A tqdm bar over the runs.
 
     Returns
     -------
@@ -557,14 +592,17 @@ def measure_compare(scenes, methods=None, *, seconds: float, res: int = 32, seed
     """
     from ..scene import load_scene
 
+    st = compare_settings(settings, scenes, methods, **fields)
+    methods = st.methods
     if methods is None:
         methods = [m for m in DEFAULT_METHODS if m in compare_methods()]
-    scenes, methods, seconds, res, seeds = check_compare_args(scenes, methods, seconds, res, seeds)
-    regions = dict(regions or {})
+    scenes, methods, seconds, res, seeds = check_compare_args(st.scenes, methods, st.seconds, st.res, st.seeds)
+    seed, options = st.seed, st.options
+    regions = dict(st.regions or {})
     for s, region in regions.items():
         _names([s], "regions", scenes)
         _region_slices(region, res)
-    references, reference_spp = dict(references or {}), dict(reference_spp or {})
+    references, reference_spp = dict(st.references or {}), dict(st.reference_spp or {})
     start = time.perf_counter()
     cells, refs, interrupted = {}, {}, False
     bar = None
