@@ -8,6 +8,7 @@ Subcommands::
     mcvar converge  --target MOD:FUNC ...    the same for your own renderer's evaluate function
     mcvar demo      [--out DIR]              the default Cornell-box convergence report
     mcvar chart     --out DIR [--quick]      the lecture's rendering-methods chart, measured
+    mcvar compare   --scenes A,B --methods m1,m2 --seconds T   every method on every scene at equal time
 
 Each subcommand parses its options and calls one library function; all the
 work (and its validation) lives in the library so notebooks and tests use the
@@ -197,6 +198,17 @@ def _cmd_chart(args) -> int:
     return 0
 
 
+def _cmd_compare(args) -> int:
+    from .compare_report import compare_report
+
+    paths = compare_report(args.out, scenes=args.scenes, methods=args.methods, seconds=args.seconds, res=args.res,
+                           seeds=args.seeds, seed=args.seed, progress=not args.quiet, pairs=args.pairs,
+                           command="mcvar " + " ".join(sys.argv[1:]))
+    for key, path in paths.items():
+        print(f"{key}: {path}")
+    return 0
+
+
 class _RegistryHelp(str):
     """A help text naming the registered methods, filled in only when help is shown
     (argparse formats help with ``%``): building the parser imports no integrator."""
@@ -215,11 +227,42 @@ class _RegistryHelp(str):
             from .experiments.chart import chart_methods
 
             names = ", ".join(chart_methods())
+        elif self.what == "scenes":
+            from .scene import SCENES
+
+            names = ", ".join(SCENES)
         else:
             from .integrators import METHODS
 
             names = ", ".join(METHODS)
         return str.__mod__(str(self).replace("{" + self.what + "}", names.replace("%", "%%")), params)
+
+
+def _add_compare_parser(sub, quiet) -> None:
+    """The ``mcvar compare`` subcommand (issue 21)."""
+    p = sub.add_parser("compare", parents=[quiet], help="every method on every scene at equal wall time",
+                       description="Render every method on every scene for the same wall time (rounds of "
+                                   "spp until --seconds are spent), compare each image with one shared "
+                                   "high-spp reference per scene (cached in OUT/.cache), and write "
+                                   "compare.csv (median spp, seconds, MSE, efficiency 1 / (MSE x time) over "
+                                   "the seeds), compare.png (methods x scenes, the winner of each column "
+                                   "framed) and compare.html. Ctrl-C writes the cells finished so far.")
+    p.add_argument("--scenes", type=_name_list, default=["cornell"],
+                   help=_RegistryHelp("comma-separated scenes: {scenes} (default cornell)", "scenes"))
+    p.add_argument("--methods", type=_name_list, default=None,
+                   help=_RegistryHelp("comma-separated registered methods: {methods} (default "
+                                      "path,path_bsdf,direct,light,bdpt,pssmlt,photon,sppm,radiosity: "
+                                      "mcvar.experiments.compare.DEFAULT_METHODS, those registered)", "methods"))
+    p.add_argument("--seconds", type=float, default=2.0, help="wall time per method, scene and seed (default 2)")
+    p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
+    p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    p.add_argument("--pairs", action="store_true",
+                   help="also the lecture's pairs at equal time (path / path_bsdf / light at the point light, "
+                        "path / pssmlt on cornell-door, path / sppm on cornell-spheres' caustic) and radiosity's "
+                        "second view from one solve: pairs.csv, radiosity_views.csv")
+    p.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder (default out/compare)")
+    p.set_defaults(func=_cmd_compare)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -348,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)
+
+    _add_compare_parser(sub, quiet)
     return parser
 
 

@@ -24,7 +24,7 @@ LAYERS = {
     "integrators": 5, "interop": 5,
     "experiments": 6, "adaptive": 6,
     "plotting": 7, "pages": 7,
-    "report": 8, "sampler_report": 8, "chart_report": 8,
+    "report": 8, "sampler_report": 8, "chart_report": 8, "compare_report": 8,
     "demo": 9,
     "cli": 10,
     "__main__": 11,
@@ -41,7 +41,7 @@ LEAF_PACKAGES = {"integrators"}
 # not been written yet (its test fails once it is a package on disk).
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
-    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "__init__"],
+    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "compare", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "bugs", "grade", "exercises", "__init__"],
     "scenefile": ["xml", "mesh", "props", "lights", "build", "write", "__init__"],
     "interop": ["mitsuba", "__init__"],

@@ -22,7 +22,8 @@ Modules, each importing only those listed before it
 consistent method), :mod:`~mcvar.experiments.runs` (streams, executors, caches),
 :mod:`~mcvar.experiments.reference`, :mod:`~mcvar.experiments.analysis`
 (metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`,
-:mod:`~mcvar.experiments.chart` (the lecture's rendering-methods chart, measured). Every public
+:mod:`~mcvar.experiments.chart` (the lecture's rendering-methods chart, measured),
+:mod:`~mcvar.experiments.compare` (every method on every scene at equal time). Every public
 name is importable from ``mcvar.experiments`` itself.
 """
 from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
@@ -32,6 +33,7 @@ from .reference import Reference, compute_reference
 from .analysis import BlockBias, ConfigMetrics, MethodFits, Verdict, block_bias_test, image_bias_verdict
 from .sweeps import SweepResult, SweepSettings, sweep
 from .chart import ChartResult, ChartRow, Knob, measure_chart, register_knob
+from .compare import CompareResult, equal_time_render, measure_compare, measure_pairs, scene_reference
 
 __all__ = [
     "Target",
@@ -65,4 +67,9 @@ __all__ = [
     "Knob",
     "measure_chart",
     "register_knob",
+    "CompareResult",
+    "equal_time_render",
+    "measure_compare",
+    "measure_pairs",
+    "scene_reference",
 ]
