@@ -47,7 +47,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
-from .bsdf import Glass, Lambertian, Mirror
+from .bsdf import Glass, Lambertian, Microfacet, Mirror
 from .geometry import normalize
 from .scenefile import read_scene_file
 
@@ -449,6 +449,13 @@ class Scene:
         Radiant intensity ``I`` (W/sr, linear RGB) emitted uniformly in all
         directions: irradiance ``I cos / r^2`` at distance ``r``, power
         ``4 pi I``.
+    sphere_light : ndarray of int, shape (Ls,)
+        Spheres (indices ``0 .. S-1``) that are area lights next-event
+        estimation samples, by the cone they subtend (default none:
+        :func:`mcvar.warps.square_to_sphere_from_point`). Lights are numbered
+        parallelograms first, then these: sphere ``sphere_light[j]`` is light
+        ``L + j``, and its primitive's ``prim_light`` must say so. Its
+        radiance is the sphere's ``prim_emission`` (one-sided: outwards).
     render_defaults : mapping
         What a scene file says about rendering it (default empty): ``res``
         ``(width, height)`` of its film, ``spp`` (its sampler's
@@ -481,6 +488,7 @@ class Scene:
     point_light_position: np.ndarray | None = None
     point_light_intensity: np.ndarray | None = None
     render_defaults: Mapping = field(default_factory=dict)
+    sphere_light: np.ndarray | None = None
 
     def __post_init__(self):
         tri = _frozen(self.triangles).reshape(-1, 3, 3)
@@ -525,8 +533,26 @@ class Scene:
             raise ValueError("point lights need finite positions and finite non-negative intensities")
         lights.update(points)
         pl = tables["prim_light"]
-        if n_prim and not (pl.min() >= -1 and pl.max() < n_light):
+        sph = _frozen(np.zeros(0) if self.sphere_light is None else self.sphere_light).reshape(-1)
+        if not (np.all(np.isfinite(sph)) and np.all(sph == np.round(sph))):
+            raise ValueError(f"sphere_light must hold sphere indices (integers); got {sph}")
+        sph = _frozen(sph, np.int64)
+        n_tri = tri.shape[0]
+        if sph.size and not (sph.min() >= 0 and sph.max() < sc.shape[0] and np.unique(sph).size == sph.size):
+            raise ValueError(f"sphere_light must hold distinct sphere indices in [0, {sc.shape[0]}); got {sph}")
+        if n_prim and not (pl.min() >= -1 and pl.max() < n_light + sph.size):
             raise ValueError("prim_light must be -1 or index a light")
+        if np.any(pl[:n_tri] >= n_light):
+            raise ValueError("prim_light of a triangle must be -1 or index a parallelogram light")
+        expect = np.full(sc.shape[0], -1)
+        expect[sph] = n_light + np.arange(sph.size)
+        if not np.array_equal(np.where(pl[n_tri:] >= n_light, pl[n_tri:], -1), expect):
+            raise ValueError("sphere_light and prim_light disagree: sphere sphere_light[j] must have prim_light "
+                             f"{n_light} + j (the lights after the {n_light} parallelogram(s)), and no other "
+                             "sphere a light index >= that")
+        if sph.size and not np.all(tables["prim_emission"][n_tri + sph] >= 0):
+            raise ValueError("sphere lights need non-negative prim_emission")
+        lights["sphere_light"] = sph
         object.__setattr__(self, "triangles", tri)
         object.__setattr__(self, "sphere_centers", sc)
         object.__setattr__(self, "sphere_radii", sr)
@@ -549,6 +575,11 @@ class Scene:
     @property
     def n_lights(self) -> int:
         return self.light_origin.shape[0]
+
+    @property
+    def n_sphere_lights(self) -> int:
+        """Spheres next-event estimation samples (lights ``L .. L + Ls - 1``)."""
+        return self.sphere_light.shape[0]
 
     @property
     def n_point_lights(self) -> int:
@@ -1124,3 +1155,97 @@ def write_scene_files(folder=None, *, res: int = 64, spp: int = 16) -> list:
 
 
 __all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR"]
+
+
+# --------------------------------------------------------------------------
+# veach-mis (issue 21): Veach's multiple importance sampling scene
+
+#: Roughness (GGX ``alpha``) of the four plates, top (nearest the lights) to bottom.
+VEACH_PLATE_ALPHA = (0.005, 0.02, 0.05, 0.1)
+#: Radii of the four sphere lights, left to right (Veach 1997, fig. 9.2: ratio 3).
+VEACH_LIGHT_RADIUS = (1.0 / 30.0, 0.1, 0.3, 0.9)
+#: Power of each light: radiance ``VEACH_LIGHT_POWER / (4 pi^2 r^2)`` (sphere power ``4 pi^2 r^2 L``).
+VEACH_LIGHT_POWER = 40.0
+
+
+def veach_mis_scene(backdrop: float = 0.1) -> Scene:
+    """Veach's MIS scene: four glossy plates, four sphere lights of equal power.
+
+    Veach (1997), *Robust Monte Carlo Methods for Light Transport
+    Simulation*, fig. 9.2 (also Nori's and Mitsuba's ``veach-mi``): four
+    plates of increasing roughness (:data:`VEACH_PLATE_ALPHA`, GGX
+    :class:`mcvar.bsdf.Microfacet`, reflectance 0.9) stacked in front of the
+    camera, each tilted so that it mirrors the row of four spherical lights
+    (:data:`VEACH_LIGHT_RADIUS`, 27x apart in radius, equal power: radiance
+    ``P / (4 pi^2 r^2)``) back to the camera, and a dim Lambertian backdrop.
+    Each plate shows a glossy reflection of every light. Light sampling
+    (``direct_light``) is noisy where a large light meets a sharp lobe (top
+    plate, right light); BSDF sampling (``direct_bsdf``) is noisy where a
+    small light meets a rough lobe (bottom plate, left light); MIS
+    (``direct``) is good on both.
+
+    Parameters
+    ----------
+    backdrop : float
+        Albedo of the backdrop wall behind the plates, in [0, 1].
+
+    Notes
+    -----
+    Units: the camera at the origin looks along +z at the plates (z about
+    10), the lights sit at y = 6, z = 6, out of view. The spheres are
+    sampled lights (:attr:`Scene.sphere_light`): NEE draws a direction in
+    the cone each subtends.
+    """
+    check_positive(backdrop, "backdrop", allow_zero=True)
+    if backdrop > 1.0:
+        raise ValueError(f"backdrop must lie in [0, 1]; got {backdrop}")
+    cam = np.zeros(3)
+    light_row = np.array([0.0, 6.0, 6.0])
+    tris, mats = [], []
+    half_w, half_h = 4.0, 0.42
+    for i, y in enumerate((1.5, 0.5, -0.5, -1.5)):
+        center = np.array([0.0, y, 10.0])
+        n = (cam - center) / np.linalg.norm(cam - center) + \
+            (light_row - center) / np.linalg.norm(light_row - center)
+        n /= np.linalg.norm(n)
+        ex = np.array([1.0, 0.0, 0.0])
+        ey = np.cross(n, ex)                                    # in the plate, mostly +y
+        ey /= np.linalg.norm(ey)
+        if ey[1] < 0:
+            ey = -ey
+        q = [center - half_w * ex - half_h * ey, center - half_w * ex + half_h * ey,
+             center + half_w * ex + half_h * ey, center + half_w * ex - half_h * ey]
+        v = np.array(q)
+        if np.dot(np.cross(v[1] - v[0], v[2] - v[0]), n) < 0:   # the front faces the camera
+            v = v[::-1]
+        tris += _quad_triangles(v)
+        mats += [i, i]
+    back = np.array([[-12.0, -8.0, 14.0], [-12.0, 12.0, 14.0], [12.0, 12.0, 14.0], [12.0, -8.0, 14.0]])
+    tris += _quad_triangles(back)
+    mats += [4, 4]
+    n_tri = len(tris)
+    radii = np.array(VEACH_LIGHT_RADIUS)
+    centers = np.column_stack([np.array([-3.75, -1.25, 1.25, 3.75]), np.full(4, light_row[1]),
+                               np.full(4, light_row[2])])
+    radiance = VEACH_LIGHT_POWER / (4.0 * np.pi ** 2 * radii ** 2)
+    emission = np.zeros((n_tri + 4, 3))
+    emission[n_tri:] = radiance[:, None]
+    prim_light = np.full(n_tri + 4, -1)
+    prim_light[n_tri:] = np.arange(4)
+    materials = tuple(Microfacet(a, reflectance=0.9) for a in VEACH_PLATE_ALPHA) + (Lambertian(backdrop),) \
+        + (Lambertian(0.0),)
+    names = tuple(f"plate{i}" for i in range(4)) + ("backdrop", "light")
+    return Scene(
+        name="veach-mis", description="Veach's MIS scene: four glossy plates, four sphere lights of equal power",
+        triangles=np.array(tris), sphere_centers=centers, sphere_radii=radii,
+        prim_material=mats + [5] * 4, prim_emission=emission,
+        prim_two_sided_emission=np.zeros(n_tri + 4, dtype=bool), prim_light=prim_light,
+        prim_group=[0] * (n_tri + 4), materials=materials, material_names=names,
+        light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)), light_edge2=np.zeros((0, 3)),
+        light_radiance=np.zeros((0, 3)), sphere_light=np.arange(4),
+        camera=Camera(cam, np.array([0.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0]), 40.0),
+        ray_epsilon=1e-4)
+
+
+SCENES["veach-mis"] = veach_mis_scene
+__all__ += ["veach_mis_scene", "VEACH_PLATE_ALPHA", "VEACH_LIGHT_RADIUS", "VEACH_LIGHT_POWER"]
