@@ -15,6 +15,9 @@ from mcvar.testing import (check_extremes, check_inverse, check_pdf_normalized, 
 TWO_PI = 2.0 * np.pi
 SEED = 20_241_122_031
 N_CHI2 = 200_000
+SPH_C = np.array([0.0, 3.0, 0.0])            # sin theta_max = 1/3
+SPH_OFF = np.array([1.0, 2.0, -1.5])
+SPH_IN = np.array([0.4, -0.3, 0.2])
 
 # (id, sampler, pdf, inverse, domain, chi2 bounds, periodic u1)
 ALPHA, AX, AY, K, CMAX = 0.3, 0.15, 0.6, 20.0, 0.8
@@ -32,6 +35,17 @@ WARPS = [
     ("cone", lambda u: w.square_to_uniform_cone(u, CMAX),
      lambda v: w.square_to_uniform_cone_pdf(v, CMAX),
      lambda v: w.uniform_cone_to_square(v, CMAX), "sphere", ((CMAX, 1.0), (0.0, TWO_PI)), True),
+    # a sphere seen from outside (on the +y axis: cone bounds), off-axis, and from inside
+    ("sphere_cone", lambda u: w.square_to_sphere_from_point(u, np.zeros((len(u), 3)), SPH_C, 1.0)[0],
+     lambda v: w.square_to_sphere_from_point_pdf(v, np.zeros((len(v), 3)), SPH_C, 1.0),
+     lambda v: w.sphere_from_point_to_square(v, np.zeros((len(v), 3)), SPH_C, 1.0), "sphere",
+     ((np.sqrt(8.0 / 9.0), 1.0), (0.0, TWO_PI)), True),
+    ("sphere_cone_offaxis", lambda u: w.square_to_sphere_from_point(u, np.zeros((len(u), 3)), SPH_OFF, 0.8)[0],
+     lambda v: w.square_to_sphere_from_point_pdf(v, np.zeros((len(v), 3)), SPH_OFF, 0.8),
+     lambda v: w.sphere_from_point_to_square(v, np.zeros((len(v), 3)), SPH_OFF, 0.8), "sphere", None, True),
+    ("sphere_inside", lambda u: w.square_to_sphere_from_point(u, np.full((len(u), 3), 0.1), SPH_IN, 1.0)[0],
+     lambda v: w.square_to_sphere_from_point_pdf(v, np.full((len(v), 3), 0.1), SPH_IN, 1.0),
+     lambda v: w.sphere_from_point_to_square(v, np.full((len(v), 3), 0.1), SPH_IN, 1.0), "sphere", None, True),
     ("phong", lambda u: w.square_to_phong_lobe(u, K), lambda v: w.square_to_phong_lobe_pdf(v, K),
      lambda v: w.phong_lobe_to_square(v, K), "hemisphere", None, True),
     ("beckmann", lambda u: w.square_to_beckmann(u, ALPHA), lambda v: w.square_to_beckmann_pdf(v, ALPHA),
@@ -175,6 +189,15 @@ def test_pdf_integrates_to_one(name, sample, pdf, inverse, domain, bounds, perio
         def pdf_on_square(p, pdf=pdf):
             return pdf(np.stack([p[:, 0] * (1 - p[:, 1]), p[:, 0] * p[:, 1]], axis=-1)) * p[:, 0]
         pdf = pdf_on_square
+    if name == "sphere_cone_offaxis":
+        # the cone's rim cuts the (cos theta, phi) cells: integrate in the frame
+        # about the centre's direction, where the rim is the cell edge cos = cos_max
+        from mcvar.geometry import Frame
+        fr, cmax = Frame(SPH_OFF / np.linalg.norm(SPH_OFF)), np.sqrt(1.0 - 0.64 / SPH_OFF.dot(SPH_OFF))
+
+        def pdf_in_cone_frame(v, pdf=pdf):
+            return pdf(fr.to_world(np.asarray(v, float)))
+        pdf, bounds = pdf_in_cone_frame, ((cmax, 1.0), (0.0, TWO_PI))
     r = check_pdf_normalized(pdf, domain, bounds=bounds, atol=1e-6)
     assert r.passed, r.message
 
