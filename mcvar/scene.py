@@ -1249,3 +1249,56 @@ def veach_mis_scene(backdrop: float = 0.1) -> Scene:
 
 SCENES["veach-mis"] = veach_mis_scene
 __all__ += ["veach_mis_scene", "VEACH_PLATE_ALPHA", "VEACH_LIGHT_RADIUS", "VEACH_LIGHT_POWER"]
+
+
+# --------------------------------------------------------------------------
+# cornell-caustic (issue 21): a caustic that path tracing reaches only by chance
+
+def cornell_caustic_scene(light_scale: float = 0.1, eta: float = 1.5) -> Scene:
+    """The Cornell room with a glass sphere under a small, bright light.
+
+    The blocks are replaced by one :class:`mcvar.bsdf.Glass` sphere (radius
+    100, resting on the floor at the room's centre, x = 278, z = 279.5, right
+    under the light). The light quad keeps its centre and is shrunk by
+    ``light_scale`` along both edges (default 0.1: 1/100 of the area) with
+    its radiance raised by ``1 / light_scale^2``: the same power. The sphere
+    focuses the light into a bright caustic on the floor around its contact
+    point. Path tracing reaches the caustic only when a diffuse bounce on
+    the floor samples a direction that refracts twice through the sphere
+    *and* hits the small light (NEE cannot see the light through glass):
+    probability about the light's solid angle, 1/100 of the Cornell box's.
+    Light subpaths (light tracing, BDPT's ``t = 1`` strategies, photons)
+    start on the light and find the caustic directly.
+
+    Parameters
+    ----------
+    light_scale : float
+        Linear scale of the light quad, in (0, 1].
+    eta : float
+        Index of refraction of the sphere.
+    """
+    light_scale = check_positive(light_scale, "light_scale")
+    if light_scale > 1.0:
+        raise ValueError(f"light_scale must lie in (0, 1]; got {light_scale}")
+    eta = check_positive(eta, "eta")
+    spheres = (((278.0, 100.0, 279.5), 100.0, "glass", Glass(eta)),)
+    base = _cornell_common(blocks=False, extra_spheres=spheres)
+    origin, e1, e2 = base["light_origin"][0], base["light_edge1"][0], base["light_edge2"][0]
+    center = origin + 0.5 * (e1 + e2)
+    o2, f1, f2 = center - 0.5 * light_scale * (e1 + e2), light_scale * e1, light_scale * e2
+    tris = np.array(base["triangles"], dtype=np.float64)
+    is_light = np.asarray(base["prim_light"])[: tris.shape[0]] >= 0
+    quad = np.array([o2, o2 + f1, o2 + f1 + f2, o2 + f2])
+    tris[is_light] = np.array(_quad_triangles(quad))
+    emission = np.array(base["prim_emission"], dtype=np.float64)
+    radiance = np.asarray(CORNELL_LIGHT_RADIANCE) / light_scale ** 2
+    emission[: tris.shape[0]][is_light] = radiance
+    base.update(triangles=tris, prim_emission=emission, light_origin=o2[None], light_edge1=f1[None],
+                light_edge2=f2[None], light_radiance=radiance[None])
+    return Scene(name="cornell-caustic",
+                 description=f"Cornell room, glass sphere under a light of {light_scale ** 2:g} the area, same power",
+                 **base)
+
+
+SCENES["cornell-caustic"] = cornell_caustic_scene
+__all__ += ["cornell_caustic_scene"]

@@ -195,10 +195,14 @@ class Emitters:
         pa = np.asarray(p, dtype=np.float64).T
         c, r = self.sphere_center[j], self.sphere_radius[j]
         w, dist = square_to_sphere_from_point(np.clip(np.asarray(u, dtype=np.float64).T, 0.0, 1.0), pa, c, r)
-        pdf = self.select_pdf * square_to_sphere_from_point_pdf(w, pa, c, r)
+        # a shading point on the sphere itself (within the ray offset): a convex
+        # emitter cannot light itself, and its cone degenerates to points at p
+        dc = np.sqrt(np.einsum("ij,ij->i", pa - c, pa - c))
+        ok = (np.abs(dc - r) > self.scene.ray_epsilon) & (dist > 0.0)
+        w[~ok] = (0.0, 1.0, 0.0)
+        pdf = np.where(ok, self.select_pdf * square_to_sphere_from_point_pdf(w, pa, c, r), 0.0)
         le = np.take(self.sphere_radiance_soa, j, axis=1)
-        outside = np.einsum("ij,ij->i", pa - c, pa - c) > r * r
-        le = np.where(outside & (pdf > 0.0), le, 0.0)
+        le = np.where((dc > r) & (pdf > 0.0), le, 0.0)
         return np.ascontiguousarray(w.T), dist, le, pdf
 
     def _area(self, p, u, li):
