@@ -47,7 +47,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
-from .bsdf import Glass, Lambertian, Microfacet, Mirror
+from .bsdf import Conductor, Glass, Lambertian, Mirror
 from .geometry import normalize
 from .scenefile import read_scene_file
 
@@ -1140,6 +1140,8 @@ def scene_file(name: str) -> Path:
     """
     if not isinstance(name, str) or name not in SCENES:
         raise ValueError(f"name must be a built-in scene, one of {', '.join(SCENES)}; got {name!r}")
+    if name in NO_SCENE_FILE:
+        raise ValueError(f"scene {name!r} has no Mitsuba 3 file: {NO_SCENE_FILE[name]}")
     path = SCENE_FILES_DIR / f"{name}.xml"
     if not path.is_file():
         raise ValueError(f"{path} is missing: run mcvar.scene.write_scene_files() in a source checkout")
@@ -1151,10 +1153,17 @@ def write_scene_files(folder=None, *, res: int = 64, spp: int = 16) -> list:
     :data:`SCENE_FILES_DIR`), at ``mcvar render``'s default film and sample count.
     Returns the paths written."""
     folder = SCENE_FILES_DIR if folder is None else Path(folder)
-    return [save_scene(SCENES[name](), folder / f"{name}.xml", res=res, spp=spp) for name in SCENES]
+    return [save_scene(SCENES[name](), folder / f"{name}.xml", res=res, spp=spp) for name in SCENES
+            if name not in NO_SCENE_FILE]
 
 
-__all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR"]
+#: Built-in scenes :func:`save_scene` cannot write, and why (not shipped as files).
+NO_SCENE_FILE = {
+    "veach-mis": "its rough conductors use height-correlated Smith masking, Mitsuba's roughconductor the "
+                 "separable one (mcvar.interop.mitsuba refuses them)",
+}
+
+__all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR", "NO_SCENE_FILE"]
 
 
 # --------------------------------------------------------------------------
@@ -1162,6 +1171,8 @@ __all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR"]
 
 #: Roughness (GGX ``alpha``) of the four plates, top (nearest the lights) to bottom.
 VEACH_PLATE_ALPHA = (0.005, 0.02, 0.05, 0.1)
+#: Complex index of the plates' metal (grey, reflectance about 0.9 at normal incidence).
+VEACH_PLATE_ETA, VEACH_PLATE_K = 0.2, 3.0
 #: Radii of the four sphere lights, left to right (Veach 1997, fig. 9.2: ratio 3).
 VEACH_LIGHT_RADIUS = (1.0 / 30.0, 0.1, 0.3, 0.9)
 #: Power of each light: radiance ``VEACH_LIGHT_POWER / (4 pi^2 r^2)`` (sphere power ``4 pi^2 r^2 L``).
@@ -1174,7 +1185,7 @@ def veach_mis_scene(backdrop: float = 0.1) -> Scene:
     Veach (1997), *Robust Monte Carlo Methods for Light Transport
     Simulation*, fig. 9.2 (also Nori's and Mitsuba's ``veach-mi``): four
     plates of increasing roughness (:data:`VEACH_PLATE_ALPHA`, GGX
-    :class:`mcvar.bsdf.Microfacet`, reflectance 0.9) stacked in front of the
+    :class:`mcvar.bsdf.Conductor`, a grey metal; Mitsuba's ``roughconductor``) stacked in front of the
     camera, each tilted so that it mirrors the row of four spherical lights
     (:data:`VEACH_LIGHT_RADIUS`, 27x apart in radius, equal power: radiance
     ``P / (4 pi^2 r^2)``) back to the camera, and a dim Lambertian backdrop.
@@ -1232,7 +1243,8 @@ def veach_mis_scene(backdrop: float = 0.1) -> Scene:
     emission[n_tri:] = radiance[:, None]
     prim_light = np.full(n_tri + 4, -1)
     prim_light[n_tri:] = np.arange(4)
-    materials = tuple(Microfacet(a, reflectance=0.9) for a in VEACH_PLATE_ALPHA) + (Lambertian(backdrop),) \
+    materials = tuple(Conductor(VEACH_PLATE_ETA, VEACH_PLATE_K, alpha_x=a) for a in VEACH_PLATE_ALPHA) \
+        + (Lambertian(backdrop),) \
         + (Lambertian(0.0),)
     names = tuple(f"plate{i}" for i in range(4)) + ("backdrop", "light")
     return Scene(
