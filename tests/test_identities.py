@@ -284,10 +284,13 @@ def test_sample_li_of_a_sphere_light_is_pdf_li_of_the_point_it_drew():
     c, r = scene.sphere_centers[0], scene.sphere_radii[0]
     p = _points(rng, n)
     p[: n // 10] = c + rng.uniform(-0.2, 0.2, (n // 10, 3))                 # inside the sphere
-    p[n // 10: n // 5] = c + np.array([0.0, -(r + 1e-3), 0.0])          # just outside: a wide cone
+    p[n // 10: n // 5] = c + np.array([0.0, -(r + 1e-2), 0.0])          # just outside: a wide cone
+    p[n // 5: n // 5 + 50] = c + np.array([0.0, -r * (1 + 1e-7), 0.0])  # on the sphere (a path's vertex on it)
     w, dist, le, pdf, light = em.sample_li(np.ascontiguousarray(p.T), rng.random((2, n)), rng.random(n))
     w, le = w.T, le.T
-    sel = np.flatnonzero(light == -3)
+    on = np.flatnonzero(light[n // 5: n // 5 + 50] == -3) + n // 5
+    assert on.size and np.all(pdf[on] == 0) and np.all(le[on] == 0)     # a convex light cannot light itself
+    sel = np.flatnonzero((light == -3) & (pdf > 0))
     assert sel.size > n // 3
     x = p[sel] + w[sel] * dist[sel, None]
     np.testing.assert_allclose(np.linalg.norm(x - c, axis=1), r, rtol=1e-9)
