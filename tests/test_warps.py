@@ -403,3 +403,30 @@ def test_bad_parameters():
         w.area_to_solid_angle_pdf(1.0, [0, 0, 0], [0, 1, 0], [0, 0, 0])
     with pytest.raises(ValueError, match="must broadcast together"):
         w.area_to_solid_angle_pdf(np.ones(3), np.zeros((2, 3)), [0, 1, 0], [0, -1, 0])
+
+
+def test_sphere_from_point_bad_input_and_known_values():
+    u = np.full((2, 2), 0.5)
+    ref = np.zeros((2, 3))
+    with pytest.raises(ValueError, match="radius"):
+        w.square_to_sphere_from_point(u, ref, SPH_C, 0.0)
+    with pytest.raises(ValueError, match="ref"):
+        w.square_to_sphere_from_point(u, np.full((2, 3), np.nan), SPH_C, 1.0)
+    with pytest.raises(ValueError, match="one row per sample"):
+        w.square_to_sphere_from_point(u, np.zeros((3, 3)), SPH_C, 1.0)
+    # u0 = 0: the direction to the centre, at distance d - r; pdf 1 / (2 pi (1 - cos theta_max))
+    v, t = w.square_to_sphere_from_point(np.array([[0.0, 0.3]]), np.zeros((1, 3)), SPH_C, 1.0)
+    np.testing.assert_allclose(v, [[0.0, 1.0, 0.0]], atol=1e-15)
+    np.testing.assert_allclose(t, [2.0], rtol=1e-15)
+    cmax = np.sqrt(8.0 / 9.0)
+    np.testing.assert_allclose(w.square_to_sphere_from_point_pdf(v, np.zeros((1, 3)), SPH_C, 1.0),
+                               [1.0 / (2 * np.pi * (1 - cmax))], rtol=1e-12)
+    # u0 = 1: the rim, tangent: the point lies on the sphere at the cone's edge
+    v, t = w.square_to_sphere_from_point(np.array([[1.0, 0.7]]), np.zeros((1, 3)), SPH_C, 1.0)
+    np.testing.assert_allclose(v[0, 1], cmax, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(v * t[:, None] - SPH_C, axis=1), [1.0], rtol=1e-12)
+    # a far, tiny sphere: 1 - cos theta_max without cancellation (r/d = 1e-9)
+    p = w.square_to_sphere_from_point_pdf(np.array([[0.0, 1.0, 0.0]]), np.zeros((1, 3)), [0.0, 1.0, 0.0], 1e-9)
+    np.testing.assert_allclose(p, [1.0 / (np.pi * 1e-18)], rtol=1e-9)
+    # outside the cone: exactly 0
+    assert w.square_to_sphere_from_point_pdf(np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 3)), SPH_C, 1.0)[0] == 0.0
