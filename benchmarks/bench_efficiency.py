@@ -116,7 +116,7 @@ def check_reference(scene, res: int, spp: int, cache: Path, ref, ref_var) -> Non
         with np.load(path) as d:
             other, other_var = d["image"], d["variance"]
     else:
-        r = render(scene, integrator="path", spp=spp, res=res, sampler="random", rng=54321, workers=2,
+        r = render(scene, method="path", spp=spp, res=res, sampler="random", rng=54321, workers=2,
                    progress=True)
         other, other_var = r.image, r.variance / r.spp
         np.savez(path, image=other, variance=other_var)
@@ -130,7 +130,8 @@ def check_reference(scene, res: int, spp: int, cache: Path, ref, ref_var) -> Non
 
 
 def run(scene, **kw):
-    """One render of configuration ``kw`` (``adaptive=True``: :func:`render_adaptive`)."""
+    """One render of configuration ``kw`` (``adaptive=True``: :func:`render_adaptive`, that is
+    ``render(..., allocation=Adaptive(...))`` with the adaptive path settings)."""
     kw = dict(kw)
     if kw.pop("adaptive", False):
         return render_adaptive(scene, **kw)
@@ -152,7 +153,7 @@ def reference(scene, res: int, spp: int, cache: Path):
         with np.load(path) as d:
             return d["image"], d["variance"]
     t = time.perf_counter()
-    r = render(scene, integrator="path", spp=spp, res=res, sampler="random", rng=12345, workers=2,
+    r = render(scene, method="path", spp=spp, res=res, sampler="random", rng=12345, workers=2,
                progress=True, visible_lights="exact")
     cache.mkdir(parents=True, exist_ok=True)
     np.savez(path, image=r.image, variance=r.variance / r.spp)

@@ -28,10 +28,10 @@ from mcvar.scene import load_scene
 
 def _rate(scene, integrator, res, spp, repeats, **kw):
     """Best and median paths/s over ``repeats`` renders (the machine may be shared)."""
-    render(scene, integrator=integrator, res=16, spp=1, rng=0, **kw)   # warm-up
+    render(scene, method=integrator, res=16, spp=1, rng=0, **kw)   # warm-up
     rates, rays = [], []
     for _ in range(repeats):
-        r = render(scene, integrator=integrator, res=res, spp=spp, rng=1, **kw)
+        r = render(scene, method=integrator, res=res, spp=spp, rng=1, **kw)
         rates.append(res * res * r.spp / r.seconds)
         rays.append(r.rays / (res * res * r.spp))
     return max(rates), float(np.median(rates)), float(np.mean(rays))
@@ -73,25 +73,25 @@ def main(quick: bool = False):
     print("\n== peak memory of one 256 x 256 render (tracemalloc, NumPy buffers included)")
     for integrator in ("path", "direct"):
         tracemalloc.start()
-        r = render(scene, integrator=integrator, res=256, spp=4, rng=2)
+        r = render(scene, method=integrator, res=256, spp=4, rng=2)
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
         print(f"{integrator:>10}: peak {peak / 2**20:.0f} MiB (batches of {256 * 256 * r.batch_spp} paths)")
 
     print("\n== MSE x spp against a high-spp reference (64 x 64, path, random sampler)")
     ref_spp = 256 if quick else 1024
-    ref = render(scene, integrator="path", res=64, spp=ref_spp, rng=3)
+    ref = render(scene, method="path", res=64, spp=ref_spp, rng=3)
     print(f"reference: {ref_spp} spp in {ref.seconds:.1f} s, image mean {ref.image.mean((0, 1)).round(4)}")
     ref_var = ref.variance.mean() / ref_spp   # the reference's own noise floor, per pixel-channel
     print(f"{'integrator':>10} {'spp':>4} {'MSE':>10} {'MSE x spp':>10} {'(MSE-ref) x spp':>15} {'1/(MSE t)':>10}")
     for integrator in ("path", "direct"):
         if integrator == "direct":
-            ref_d = render(scene, integrator="direct", res=64, spp=ref_spp, rng=4)
+            ref_d = render(scene, method="direct", res=64, spp=ref_spp, rng=4)
             ref_img, floor = ref_d.image, ref_d.variance.mean() / ref_spp
         else:
             ref_img, floor = ref.image, ref_var
         for spp in (1, 4, 16, 64):
-            r = render(scene, integrator=integrator, res=64, spp=spp, rng=10 + spp)
+            r = render(scene, method=integrator, res=64, spp=spp, rng=10 + spp)
             e = float(mse(ref_img, r.image))
             print(f"{integrator:>10} {spp:>4} {e:>10.5f} {e * spp:>10.4f} {(e - floor) * spp:>15.4f} "
                   f"{1.0 / (e * r.seconds):>10.1f}")
@@ -99,7 +99,7 @@ def main(quick: bool = False):
     print("\n== profile: path, 64 x 64, 16 spp (top 12 by own time)")
     prof = cProfile.Profile()
     prof.enable()
-    render(scene, integrator="path", res=64, spp=16, rng=5)
+    render(scene, method="path", res=64, spp=16, rng=5)
     prof.disable()
     out = io.StringIO()
     pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(12)

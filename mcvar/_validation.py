@@ -26,6 +26,10 @@ __all__ = [
     "as_unit_directions",
     "as_unit_square",
     "as_rgb",
+    "MEMORY_BUDGET",
+    "check_bool",
+    "check_budget",
+    "format_bytes",
 ]
 
 #: Largest ``| |v| - 1 |`` accepted where a function needs unit vectors
@@ -33,6 +37,15 @@ __all__ = [
 #: float32 or rotated by a few frames, tight enough that a direction of length
 #: 2 (or 1.001) is refused instead of silently giving a wrong pdf.
 UNIT_TOLERANCE = 1e-6
+
+
+#: Memory budget, in bytes, of the work an option implies (photon maps,
+#: bootstrap candidates, radiosity matrices, ...): 4 GiB, the same default as
+#: ``mcvar.integrators.MAX_RENDER_BYTES`` and ``mcvar.samplers.MAX_BYTES``.
+#: :func:`check_budget` reads it at call time, so assigning
+#: ``mcvar._validation.MEMORY_BUDGET = 16 * 2**30`` raises it for the session
+#: (docs/conventions.md, 'Memory').
+MEMORY_BUDGET = 4 * 2 ** 30
 
 
 class NotAnIntegerError(ValueError, TypeError):
@@ -225,3 +238,114 @@ def as_rgb(value, name: str, *, upper: float | None = None, why: str = "") -> np
         reason = f" ({why})" if why else ""
         raise ValueError(f"{name} must be <= {upper} in every channel{reason}; got {arr.tolist()}")
     return np.array(arr, dtype=np.float64)
+
+
+def check_bool(value, name: str) -> bool:
+    """Return ``value`` as a Python bool after checking it is ``bool`` or ``numpy.bool_``.
+
+    ``'no'``, ``0``, ``1`` and ``None`` are a ``TypeError``: a string is truthy
+    whatever it says, so accepting it would silently turn ``'no'`` into yes.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a bool (True or False); got {type(value).__name__} {value!r}")
+    return bool(value)
+
+
+def format_bytes(b: float) -> str:
+    """``b`` bytes in the largest binary unit below it: ``'3.5 GiB'``."""
+    b = float(b)
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(b) < 1024.0 or unit == "PiB":
+            return f"{b:.3g} {unit}"
+        b /= 1024.0
+    return f"{b:.3g} PiB"  # pragma: no cover
+
+
+def check_budget(name: str, value, needed_bytes: float, *, per_unit: float | None = None,
+                 budget: float | None = None, what: str = "", unit_name: str | None = None) -> None:
+    """The one rule for sizes an option implies: refuse before allocating.
+
+    Parameters
+    ----------
+    name : str
+        The option (``'photons'``, ``'n_bootstrap'``, ``'patch_size'``).
+    value
+        Its value, quoted in the message (None: ``name`` already says it,
+        e.g. ``'patch_size=1 with rays_per_side=256'``).
+    needed_bytes : float
+        Estimated peak memory (computed in float, so that ``2**40`` of
+        anything does not overflow).
+    per_unit : float, optional
+        Bytes per unit of the option, for a count: the message then says the
+        largest value that fits (``budget // per_unit``).
+    budget : float, optional
+        Bytes allowed; default :data:`MEMORY_BUDGET` (read at call time).
+    what : str
+        What the memory holds (``'the photon map'``), for the message.
+    unit_name : str, optional
+        The count ``per_unit`` is per, in the 'at most ... fits' part
+        (default ``name``).
+
+    Raises
+    ------
+    ValueError
+        ``needed_bytes > budget`` (or NaN), naming ``name``, what it needs and
+        what would fit.
+    """
+    limit = float(MEMORY_BUDGET if budget is None else budget)
+    need = float(needed_bytes)
+    if need <= limit:
+        return
+    fit = ""
+    if per_unit is not None and per_unit > 0:
+        fit = f"; at most {name if unit_name is None else unit_name}={int(limit // per_unit)} fits"
+    held = f" ({what})" if what else ""
+    label = name if value is None else f"{name}={value!r}"
+    raise ValueError(f"{label} needs about {format_bytes(need)} of memory{held}, more than the "
+                     f"budget of {format_bytes(limit)}{fit} (raise mcvar._validation.MEMORY_BUDGET "
+                     "if the machine has the memory)")
+
+
+def settings_with(cls, settings, options: dict, where: str):
+    """``settings`` (an instance of the frozen dataclass ``cls``; None: its defaults) with the
+    keyword ``options`` replacing fields, the way a function taking a settings record keeps
+    its documented keywords: an unknown keyword is a ``TypeError`` naming the accepted ones.
+
+    Examples
+    --------
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class S:
+    ...     n: int = 1
+    >>> settings_with(S, None, {"n": 3}, "f")
+    S(n=3)
+    """
+    from dataclasses import fields, replace
+
+    if settings is None:
+        settings = cls()
+    elif not isinstance(settings, cls):
+        raise TypeError(f"{where}: settings must be a {cls.__name__}; got {type(settings).__name__}")
+    names = [f.name for f in fields(cls)]
+    unknown = [k for k in options if k not in names]
+    if unknown:
+        raise TypeError(f"{where}() got unexpected keyword argument(s) {', '.join(map(repr, unknown))}; "
+                        f"its settings ({cls.__name__}) are {', '.join(names)}")
+    return replace(settings, **options) if options else settings
+
+
+def seed_alias(options: dict, where: str, *, name: str = "rng") -> dict:
+    """``options`` with the deprecated keyword ``seed`` renamed to ``rng`` (a DeprecationWarning;
+    both at once is a TypeError). mcvar's Python API says ``rng`` everywhere; ``--seed`` stays
+    the command line's word."""
+    if "seed" not in options:
+        return options
+    import warnings
+
+    options = dict(options)
+    if name in options:
+        raise TypeError(f"{where}() got both {name}= and its deprecated alias seed=; pass {name}= only")
+    warnings.warn(f"{where}(seed=...) is deprecated: pass {name}= (the same integer)", DeprecationWarning,
+                  stacklevel=3)
+    options[name] = options.pop("seed")
+    return options

@@ -21,7 +21,8 @@ from pathlib import Path
 
 from .experiments.chart import CHART_COLUMNS, ChartResult, measure_chart
 from .plotting import plt, save_figure
-from .report import _CSS, _PRINT_JS, _clauses, _csv, _details, _fmt, _img, _table
+from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, clauses as _clauses, details as _details,
+                    fmt as _fmt, img as _img, table as _table, write_csv as _csv)
 
 __all__ = ["chart_report", "chart_section", "write_chart", "plot_chart"]
 
@@ -154,13 +155,14 @@ def write_chart(result: ChartResult, out, *, command: str | None = None) -> dict
     return {"html": paths.pop("html"), **paths}
 
 
-def chart_report(out, *, quick: bool = False, methods=None, seed: int = 0, workers: int | None = None,
-                 progress: bool = True, command: str | None = None, **settings) -> dict[str, Path]:
+def chart_report(out, settings=None, *, command: str | None = None, **options) -> dict[str, Path]:
     """Measure the chart (:func:`mcvar.experiments.measure_chart`) and write it into ``out``.
 
     Finished runs and the reference are cached in ``out/.cache``: running it
-    again (or after Ctrl-C) computes only what is missing. ``settings``
-    (``res``, ``replicates``, ``levels``, ``reference_spp``, ...) go to
+    again (or after Ctrl-C) computes only what is missing. ``settings`` (a
+    :class:`~mcvar.experiments.chart.ChartSettings`) and the keywords
+    (``quick``, ``methods``, ``rng``, ``workers``, ``progress``, ``res``,
+    ``replicates``, ``levels``, ``reference_spp``, ...: its fields) go to
     :func:`~mcvar.experiments.measure_chart`.
 
     Returns
@@ -177,6 +179,5 @@ def chart_report(out, *, quick: bool = False, methods=None, seed: int = 0, worke
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ValueError(f"out: cannot create the folder {out} ({exc.strerror or exc})") from exc
-    result = measure_chart(quick=quick, methods=methods, seed=seed, workers=workers, progress=progress,
-                           cache_dir=out / ".cache", **settings)
+    result = measure_chart(settings, cache_dir=out / ".cache", **options)
     return write_chart(result, out, command=command)

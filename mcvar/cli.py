@@ -43,7 +43,7 @@ def _name_list(text: str) -> list[str]:
 def _cmd_samplers(args) -> int:
     from .sampler_report import write_samplers_report
 
-    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, seed=args.seed,
+    paths = write_samplers_report(args.out, n=args.n, n_max=args.n_max, rng=args.seed,
                                   progress=not args.quiet)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -53,33 +53,37 @@ def _cmd_samplers(args) -> int:
 def _cmd_render(args) -> int:
     from .images import write_image
     from .integrators import render
+    from .integrators.registry import get_method, pop_method_name
     from .scene import load_scene
 
+    name = pop_method_name({} if args.integrator is None else {"integrator": args.integrator}, args.method,
+                           "mcvar render (--method, --integrator)")
+    method = get_method(name)
     options = {}
     if args.strategies is not None:
-        if args.integrator != "bdpt":
+        if method.name != "bdpt":
             raise ValueError("--strategies writes the (s, t) strategy images of bidirectional path tracing: "
-                             f"it needs --integrator bdpt, not {args.integrator!r}")
+                             f"it needs --method bdpt, not {method.name!r}")
         options["strategies"] = True
     scene = load_scene(args.scene)
-    _scene_file_defaults(args, scene)
+    _scene_file_defaults(args, scene, method.name)
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out must name an image file (.npy, .png, .exr, .hdr); {str(out)!r} is a directory")
     # estimator options of the path methods, only when asked for (other methods do not take them)
     tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
                                 ("rr_depth", args.rr_depth)) if v is not None}
-    if _adaptive_default(args):
-        from .adaptive import render_adaptive
+    common = dict(method=method.name, spp=args.spp, res=args.res, sampler=args.sampler, rng=args.seed,
+                  max_depth=args.max_depth, heuristic=args.heuristic, progress=not args.quiet)
+    if _adaptive_default(args, method):
+        from .adaptive import adaptive_settings
 
         # the most efficient unbiased configuration (docs/performance.md)
-        result = render_adaptive(scene, integrator=args.integrator, spp=args.spp, res=args.res,
-                                 sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                                 heuristic=args.heuristic, workers=_adaptive_workers(args.workers),
-                                 progress=not args.quiet, **tuning)
+        result = render(scene, allocation="adaptive", workers=_adaptive_workers(args.workers),
+                        **common, **{**adaptive_settings(method), **tuning})
     else:
-        result = render(scene, integrator=args.integrator, spp=args.spp, res=args.res,
-                        sampler=args.sampler, rng=args.seed, max_depth=args.max_depth,
-                        heuristic=args.heuristic, batch_spp=args.batch_spp,
-                        workers=1 if args.workers is None else args.workers, progress=not args.quiet,
-                        **options, **tuning)
+        result = render(scene, batch_spp=args.batch_spp,
+                        workers=1 if args.workers is None else args.workers, **common, **options, **tuning)
     path = write_image(args.out, result.image)
     note = " (interrupted: image holds the spp finished)" if result.interrupted else ""
     print(f"wrote {path}: {result.image.shape[1]}x{result.image.shape[0]}, "
@@ -92,7 +96,7 @@ def _cmd_render(args) -> int:
     return 0
 
 
-def _scene_file_defaults(args, scene) -> None:
+def _scene_file_defaults(args, scene, method: str) -> None:
     """Fill the options the command line left out (None) from what a scene file says
     (``Scene.render_defaults``: film size, sample count, path depth, roulette depth),
     else the built-in defaults (64 x 64 pixels, 16 spp)."""
@@ -103,9 +107,9 @@ def _scene_file_defaults(args, scene) -> None:
         args.res = given.get("res", 64)
     if args.spp is None:
         args.spp = given.get("spp", 16)
-    if args.max_depth is None and args.integrator in ("path", "path_bsdf", "light", "bdpt"):
+    if args.max_depth is None and method in ("path", "path_bsdf", "light", "bdpt"):
         args.max_depth = given.get("max_depth")
-    method = METHODS.get(args.integrator)
+    method = METHODS.get(method)
     if args.rr_depth is None and "rr_depth" in given and method is not None and "rr_depth" in method.options:
         args.rr_depth = given["rr_depth"]
 
@@ -117,14 +121,19 @@ def _adaptive_workers(workers):
     return min(2, os.cpu_count() or 1) if workers is None else workers
 
 
-def _adaptive_default(args) -> bool:
-    """``mcvar render`` renders adaptively (mcvar.adaptive) unless ``--uniform``,
-    a first-hit integrator, ``--batch-spp``, a square-only sampler or fewer
-    than 16 spp (the pilot would be too small to allocate by) say otherwise."""
-    from .adaptive import ADAPTIVE_INTEGRATORS
+def _adaptive_default(args, method) -> bool:
+    """``mcvar render`` renders with ``allocation='adaptive'`` unless ``--uniform``,
+    a method that is not camera-kind, ``--batch-spp``, a square-only sampler
+    or fewer than 16 spp (the pilot would be too small to allocate by) say
+    otherwise."""
+    return (not args.uniform and method.kind == "camera" and args.batch_spp is None
+            and not _square_sampler(args.sampler) and args.spp >= 16)
 
-    return (not args.uniform and args.integrator in ADAPTIVE_INTEGRATORS and args.batch_spp is None
-            and args.sampler not in ("grid", "jittered") and args.spp >= 16)
+
+def _square_sampler(name: str) -> bool:
+    from .samplers import SAMPLERS
+
+    return name in SAMPLERS and SAMPLERS[name].square
 
 
 def _cmd_converge(args) -> int:
@@ -150,7 +159,7 @@ def _cmd_converge(args) -> int:
             methods = [f"path:{given['max_depth']}"]
     paths = convergence_report(target, args.out, methods=methods, samplers=args.samplers,
                                spp=args.spp, replicates=args.replicates, res=32 if res is None else res,
-                               seed=args.seed, workers=args.workers, progress=not args.quiet,
+                               rng=args.seed, workers=args.workers, progress=not args.quiet,
                                reference=args.reference)
     for key, path in paths.items():
         print(f"{key}: {path}")
@@ -158,7 +167,7 @@ def _cmd_converge(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from .report import demo
+    from .demo import demo
 
     paths = demo(args.out, progress=not args.quiet)
     if not args.no_best:
@@ -180,12 +189,37 @@ def _cmd_demo(args) -> int:
 def _cmd_chart(args) -> int:
     from .chart_report import chart_report
 
-    paths = chart_report(args.out, quick=args.quick, methods=args.methods, seed=args.seed,
+    paths = chart_report(args.out, quick=args.quick, methods=args.methods, rng=args.seed,
                          workers=args.workers, progress=not args.quiet,
                          command="mcvar " + " ".join(sys.argv[1:]))
     for key, path in paths.items():
         print(f"{key}: {path}")
     return 0
+
+
+class _RegistryHelp(str):
+    """A help text naming the registered methods, filled in only when help is shown
+    (argparse formats help with ``%``): building the parser imports no integrator."""
+
+    def __new__(cls, template: str, what: str):
+        obj = super().__new__(cls, template)
+        obj.what = what
+        return obj
+
+    def __mod__(self, params):
+        if self.what == "samplers":
+            from .samplers import SAMPLERS
+
+            names = ", ".join(SAMPLERS)
+        elif self.what == "rows":
+            from .experiments.chart import chart_methods
+
+            names = ", ".join(chart_methods())
+        else:
+            from .integrators import METHODS
+
+            names = ", ".join(METHODS)
+        return str.__mod__(str(self).replace("{" + self.what + "}", names.replace("%", "%%")), params)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -210,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_samplers)
 
     p = sub.add_parser("render", parents=[quiet], help="render one image of a scene",
-                       description="Render a scene with one integrator and sampler. .npy holds "
+                       description="Render a scene with one method and sampler. .npy holds "
                                    "linear radiance (H, W, 3), row 0 at the top; .png is tonemapped "
                                    "to sRGB; .exr is linear. Ctrl-C keeps the spp finished so far.")
     p.add_argument("scene", help="scene name (cornell, cornell-spheres, checkerboard, furnace, quad-environment, "
@@ -219,11 +253,13 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "scene file's film)")
     p.add_argument("--spp", type=int, default=None, help="samples per pixel (default 16, or a scene file's "
                                                          "sample_count)")
-    p.add_argument("--integrator", default="path", help="path (NEE + MIS, default), path_bsdf, direct (MIS), "
-                                                          "direct_light, direct_bsdf, albedo, normal, depth, raster, "
-                                                          "position: any method of mcvar.integrators.METHODS")
-    p.add_argument("--sampler", default="sobol", help="pixel sampler name from mcvar.samplers (default sobol; "
-                                                        "the previous default was random)")
+    p.add_argument("--method", default=None,
+                   help=_RegistryHelp("rendering method, any of mcvar.integrators.METHODS: {methods} "
+                                      "(default path: NEE + MIS)", "methods"))
+    p.add_argument("--integrator", default=None, help="alias of --method")
+    p.add_argument("--sampler", default="sobol",
+                   help=_RegistryHelp("pixel sampler, any of mcvar.samplers.SAMPLERS: {samplers} (default sobol; "
+                                      "the previous default was random)", "samplers"))
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same image")
     p.add_argument("--max-depth", type=int, default=None,
                    help="maximum path depth (1 = emitters seen directly); default: Russian roulette")
@@ -233,12 +269,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="processes to spread batches over (default: 2 for adaptive renders, the "
                         "caller and one more; 1 with --uniform, the previous behaviour)")
     p.add_argument("--strategies", type=Path, default=None, metavar="DIR",
-                   help="with --integrator bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
+                   help="with --method bdpt: write every (s, t) strategy's weighted image of depth <= 4 "
                         "to DIR (s{s}_t{t}.npy, linear) and their grid (strategies.png)")
     p.add_argument("--uniform", action="store_true",
-                   help="the same spp in every pixel (the previous behaviour); default for path/direct "
-                        "integrators at >= 16 spp: unbiased adaptive sampling (a pilot decides where "
-                        "the samples go, docs/performance.md)")
+                   help="the same spp in every pixel (the previous behaviour); default for camera-kind "
+                        "methods (path, direct, ...) at >= 16 spp: unbiased adaptive sampling (a pilot "
+                        "decides where the samples go, docs/performance.md)")
     p.add_argument("--visible-lights", choices=("exact", "sampled"), default=None,
                    help="lights seen directly by the camera: their exact pixel integral plus sampled "
                         "differences (a control variate; default for adaptive renders) or plain sampling "
@@ -263,12 +299,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "MODULE (importable from the current folder); methods from --methods or the "
                         "module's METHODS; reference from --reference, EXACT or reference(rng)")
     p.add_argument("--methods", "--integrators", "--estimators", dest="methods", type=_name_list,
-                   default=None, help="comma-separated integrators (scenes; 'path:3' stops paths at "
+                   default=None, help="comma-separated rendering methods (scenes; 'path:3' stops paths at "
                                       "depth 3, 'path' uses Russian roulette) or the problem's "
                                       "estimators (integrands); default: path,path:2,direct or "
-                                      "every estimator")
+                                      "every estimator (--integrators and --estimators are aliases)")
     p.add_argument("--samplers", type=_name_list, default=None,
-                   help="comma-separated sampler names (default random,jittered,sobol)")
+                   help=_RegistryHelp("comma-separated sampler names ({samplers}; default "
+                                      "random,jittered,sobol)", "samplers"))
     p.add_argument("--spp", type=_int_list, default=None,
                    help="comma-separated spp (or N) levels (default 1,4,16,64 for scenes, "
                         "1,4,...,4096 for integrands)")
@@ -306,12 +343,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="16 x 16 pixels, 10 replicates (under 2 minutes "
                                                         "for spp methods on 2 cores)")
     p.add_argument("--methods", type=_name_list, default=None,
-                   help="comma-separated chart methods (raster, path, path_depth3, light, bdpt, pssmlt, "
-                        "photon, sppm, radiosity); default: every registered one")
+                   help=_RegistryHelp("comma-separated chart methods ({rows}; 'path_depth3' is an alias of "
+                                      "'path:3'); default: every registered one", "rows"))
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.set_defaults(func=_cmd_chart)
     return parser
+
+
+#: What ``main`` reports as a user's error (one line on stderr, exit status 2):
+#: bad values and types (the library's ``ValueError``/``TypeError`` name the
+#: argument), files that cannot be read or written (``OSError``: a missing
+#: file, ``--out`` naming a directory, no permission, a full disk) and a
+#: ``--target`` module that cannot be imported. Anything else (``KeyError``,
+#: ``IndexError``, ``MemoryError`` ...) is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, TypeError, OSError, ImportError)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
 
 
 def main(argv=None) -> int:
@@ -319,8 +370,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
-        print(f"mcvar {args.command}: error: {exc}", file=sys.stderr)
+    except USER_ERRORS as exc:
+        print(f"mcvar {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mcvar {args.command}: interrupted", file=sys.stderr)

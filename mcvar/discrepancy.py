@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 from scipy.stats import qmc
 
-from ._validation import as_points, check_choice, check_count
+from ._validation import as_points, check_bool, check_choice, check_count
 
 __all__ = [
     "star",
@@ -51,12 +51,6 @@ def _unit_points(points, *, d=None) -> np.ndarray:
         raise ValueError("points must hold at least one point; got shape "
                          f"{pts.shape}")
     return pts
-
-
-def _check_bool(value, name: str) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be a bool; got {type(value).__name__}")
-    return bool(value)
 
 
 # --------------------------------------------------------------------------
@@ -162,14 +156,14 @@ def l2_star(points, *, squared: bool = False) -> float:
     sets", in Applications of Number Theory to Numerical Analysis, 1972.
     """
     pts = _unit_points(points)
-    sq = _check_bool(squared, "squared")
+    sq = check_bool(squared, "squared")
     value = float(qmc.discrepancy(pts, method="L2-star"))  # scipy returns T, the root
     return value ** 2 if sq else value
 
 
 def _scipy_squared(points, method: str, squared) -> float:
     pts = _unit_points(points)
-    sq = _check_bool(squared, "squared")
+    sq = check_bool(squared, "squared")
     value = max(float(qmc.discrepancy(pts, method=method)), 0.0)  # scipy returns the square
     return value if sq else math.sqrt(value)
 

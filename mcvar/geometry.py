@@ -132,7 +132,7 @@ class Frame:
         return v[..., 0:1] * self.s + v[..., 1:2] * self.n + v[..., 2:3] * self.t
 
 
-def _clip_halfplanes(poly: np.ndarray, h: np.ndarray) -> np.ndarray:
+def _clip_halfplanes(poly: np.ndarray, h: np.ndarray, snap=None) -> np.ndarray:
     """Clip convex polygons ``poly`` (P, K, D) to ``h >= 0``, ``h`` (P, K) the
     signed distances of their vertices: Sutherland and Hodgman (1974), all
     polygons at once.
@@ -141,14 +141,24 @@ def _clip_halfplanes(poly: np.ndarray, h: np.ndarray) -> np.ndarray:
     edges) are allowed; the result has ``K + 1`` vertices per row (a convex
     polygon cut by a line or plane gains at most one), its unused slots repeating the
     last vertex kept. An empty result is all NaN.
+
+    ``snap = (axis, bound)`` says the boundary is the line ``x[axis] = bound``
+    (``bound`` broadcasting against ``h``): cut points get that coordinate
+    exactly, not by interpolation (whose rounding is relative to the
+    vertices' magnitude: a polygon with vertices at 1e300 would be cut
+    1e284 off). The parameter is computed from halved distances, so that
+    ``h - h_next`` does not overflow for vertices near the float limit.
     """
     nxt_poly = np.roll(poly, -1, axis=1)
     nxt_h = np.roll(h, -1, axis=1)
     inside = h >= 0.0
     cross = inside != (nxt_h >= 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(cross, h / (h - nxt_h), 0.0)
-    cut = poly + s[..., None] * (nxt_poly - poly)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        s = np.where(cross, (0.5 * h) / (0.5 * h - 0.5 * nxt_h), 0.0)
+        cut = poly + s[..., None] * (nxt_poly - poly)
+    if snap is not None:
+        axis, bound = snap
+        cut[..., axis] = np.where(cross, np.broadcast_to(bound, h.shape), cut[..., axis])
     p_count, k = h.shape
     cand = np.empty((p_count, 2 * k, poly.shape[2]))
     cand[:, 0::2] = poly
@@ -219,7 +229,7 @@ def polygon_pixel_coverage(vertices, width: int, height: int, *, chunk: int = 65
         r, c = rows[a:a + chunk, None].astype(np.float64), cols[a:a + chunk, None].astype(np.float64)
         poly = np.broadcast_to(v, (r.shape[0],) + v.shape)
         for axis, sign, bound in ((0, 1.0, c), (0, -1.0, c + 1.0), (1, 1.0, r), (1, -1.0, r + 1.0)):
-            poly = _clip_halfplanes(poly, sign * (poly[..., axis] - bound))
+            poly = _clip_halfplanes(poly, sign * (poly[..., axis] - bound), snap=(axis, bound))
         x, y = poly[..., 0], poly[..., 1]
         area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
         out[rows[a:a + chunk], cols[a:a + chunk]] = np.nan_to_num(area, nan=0.0)

@@ -43,12 +43,15 @@ from typing import Callable
 
 import numpy as np
 
-from ._validation import as_array, as_rng, check_choice, check_count, check_positive, check_probability
+from ._validation import (as_array, as_rng, check_budget, check_choice, check_count, check_positive,
+                          check_probability, settings_with)
 from .envmap import LUMINANCE_WEIGHTS
 from .estimators import Estimate
 
 __all__ = [
     "Chain",
+    "WalkSettings",
+    "IMAGE_WALK",
     "metropolis",
     "image_walk",
     "integrated_time",
@@ -57,6 +60,8 @@ __all__ = [
     "tv_distance",
     "MAX_STORED",
     "SOKAL_C",
+    "BOOTSTRAP_CHUNK",
+    "check_walk_budget",
 ]
 
 #: Largest number of float64 numbers a :class:`Chain` stores for its
@@ -71,6 +76,13 @@ SOKAL_C = 5.0
 
 #: Default number of bootstrap candidates (pbrt-v4's MLT uses 100 000).
 N_BOOTSTRAP = 100_000
+#: Bootstrap candidates evaluated per call of the target (bounds the memory of
+#: what ``f`` or the path tracer allocates for them).
+BOOTSTRAP_CHUNK = 1 << 16
+#: Float64 numbers alive per chain and state dimension during a step (state,
+#: proposal, the Gaussian step, the large-step points and ``np.where``'s copy),
+#: rounded up.
+WORDS_PER_CHAIN_DIM = 8
 
 
 # ---------------------------------------------------------------------------
@@ -335,8 +347,16 @@ class Chain:
 # The sampler
 
 def _evaluate(f, x: np.ndarray) -> np.ndarray:
-    """``f(x)`` checked: shape (m,), finite, >= 0."""
-    v = np.asarray(f(x), dtype=np.float64)
+    """``f(x)`` checked: real numbers, shape (m,), finite, >= 0."""
+    out = f(x)
+    try:
+        v = np.asarray(out)
+    except (TypeError, ValueError):     # ragged sequences
+        v = np.asarray(out, dtype=object)
+    if v.dtype.kind not in "biuf":
+        raise TypeError(f"f must return real numbers (a non-negative density, shape ({x.shape[0]},)); "
+                        f"got {type(out).__name__} of dtype {v.dtype}")
+    v = v.astype(np.float64)
     if v.shape != (x.shape[0],):
         raise ValueError(f"f must return shape ({x.shape[0]},) for points of shape {x.shape}; got {v.shape}")
     if not np.all(np.isfinite(v) & (v >= 0.0)):
@@ -345,10 +365,56 @@ def _evaluate(f, x: np.ndarray) -> np.ndarray:
     return v
 
 
+def _evaluate_chunked(evaluate, cand: np.ndarray, chunk: int | None = None):
+    """``evaluate`` over the rows of ``cand`` ``chunk`` (default
+    :data:`BOOTSTRAP_CHUNK`) at a time: the values (n,) and the payloads
+    stacked (or None); one call when they fit."""
+    chunk = BOOTSTRAP_CHUNK if chunk is None else chunk
+    n = cand.shape[0]
+    if n <= chunk:
+        return evaluate(cand)
+    fc = np.empty(n)
+    payload = None
+    for a in range(0, n, chunk):
+        f, p = evaluate(cand[a:a + chunk])
+        fc[a:a + chunk] = f
+        if p is not None:
+            if payload is None:
+                payload = np.empty((n,) + np.shape(p)[1:], dtype=np.asarray(p).dtype)
+            payload[a:a + chunk] = p
+    return fc, payload
+
+
+def check_walk_budget(dim: int, chains: int, n_bootstrap: int | None, n_steps: int = 0, thin: int = 1, *,
+                      payload_words: int = 0, dim_name: str = "dim", dim_value=None) -> None:
+    """The memory a chain run needs, checked against the budget before anything
+    is drawn (:func:`mcvar._validation.check_budget`): the bootstrap's
+    candidates (``n_bootstrap`` rows of ``dim`` numbers, their values and
+    payloads, all kept for the resampling), a step's arrays
+    (:data:`WORDS_PER_CHAIN_DIM` numbers per chain and dimension) and the
+    kept states (every ``thin``-th of ``n_steps`` steps of ``chains`` states).
+    One chain's state is checked first, blaming ``dim_name`` (``'dim'``, or
+    PSSMLT's ``'state_depth'``); ``n_bootstrap=None`` skips the bootstrap."""
+    per_chain = 8.0 * (WORDS_PER_CHAIN_DIM * dim + 4 + payload_words)
+    check_budget(dim_name, dim if dim_value is None else dim_value, per_chain,
+                 what=f"one chain's step in {dim} dimensions")
+    if n_bootstrap is None:
+        n_bootstrap = 0
+    per_candidate = 8.0 * (dim + 1 + payload_words)
+    check_budget("n_bootstrap", n_bootstrap, n_bootstrap * per_candidate, per_unit=per_candidate,
+                 what=f"{n_bootstrap} bootstrap candidates of {dim} numbers, kept for resampling")
+    dim_label = dim if dim_value is None else dim_value
+    check_budget(f"chains={chains!r} with {dim_name}={dim_label!r}", None, chains * per_chain, per_unit=per_chain,
+                 unit_name="chains", what=f"a step of {chains} chains in {dim} dimensions")
+    n_kept = -(-n_steps // thin)
+    check_budget("thin", thin, n_kept * 8.0 * chains * (dim + 2),
+                 what=f"{n_kept} kept steps of {chains} chains in {dim} dimensions; a larger thin keeps fewer")
+
+
 def _bootstrap(evaluate, dim: int, chains: int, n_bootstrap: int, rng):
     """Independent uniform candidates, ``b`` from their mean, chains resampled ``∝ f``."""
     cand = rng.random((n_bootstrap, dim))
-    fc, payload = evaluate(cand)
+    fc, payload = _evaluate_chunked(evaluate, cand)
     total = fc.sum()
     if not total > 0.0:
         raise ValueError(f"f is zero at all {n_bootstrap} bootstrap candidates: cannot start the chains "
@@ -380,9 +446,11 @@ def _mutate(x: np.ndarray, sigma: float, p_large: float, rng) -> np.ndarray:
     return y
 
 
-def _walk(evaluate, x, fx, payload, n_steps, sigma, p_large, rng, visit=None, thin=1):
+def _walk(evaluate, start, n_steps, mutation, rng, visit=None, thin=1):
     """The Metropolis loop shared by :func:`metropolis`, :func:`image_walk` and PSSMLT.
 
+    ``start = (x, fx, payload)``: the chains' first states, their values and
+    payloads (or None); ``mutation = (sigma, p_large)``: Kelemen's mutation.
     ``evaluate(points) -> (f, payload or None)``; ``visit(x, fx, px, y, fy,
     py, a, acc)`` is called at every step with the current state, the
     proposal, the acceptance probability and the accept flags (before the
@@ -391,6 +459,8 @@ def _walk(evaluate, x, fx, payload, n_steps, sigma, p_large, rng, visit=None, th
     and the number of steps done (fewer than ``n_steps`` after Ctrl-C, which
     keeps the finished steps).
     """
+    x, fx, payload = start
+    sigma, p_large = mutation
     chains, dim = x.shape
     n_kept = -(-n_steps // thin)
     samples = np.empty((n_kept, chains, dim))
@@ -429,8 +499,25 @@ def _stride(n_steps, chains, dim, thin):
     return check_count(thin, "thin")
 
 
-def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: float = 0.01,
-               p_large: float = 0.1, rng=None, n_bootstrap: int = N_BOOTSTRAP, thin: int | None = None) -> Chain:
+@dataclass(frozen=True)
+class WalkSettings:
+    """The chains of a Metropolis walk: how many, Kelemen's mutation (``sigma``, ``p_large``),
+    the bootstrap size and the thinning (None: chosen to bound memory). The keywords of
+    :func:`metropolis` (these defaults) and :func:`image_walk` (``chains=1, sigma=0.02``)."""
+
+    chains: int = 64
+    sigma: float = 0.01
+    p_large: float = 0.1
+    n_bootstrap: int = N_BOOTSTRAP
+    thin: int | None = None
+
+
+#: :func:`image_walk`'s defaults: one chain, larger small steps.
+IMAGE_WALK = WalkSettings(chains=1, sigma=0.02)
+
+
+def metropolis(f: Callable, dim: int, n_steps: int, settings: WalkSettings | None = None, *, rng=None,
+               **options) -> Chain:
     """Metropolis-Hastings sampling of ``f / b`` on ``[0, 1)^dim`` with Kelemen's mutations.
 
     Parameters
@@ -443,6 +530,13 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
         Dimension of the state.
     n_steps : int
         Mutations per chain, ``>= 1``.
+    settings : WalkSettings, optional
+        ``chains``, ``sigma``, ``p_large``, ``n_bootstrap`` and ``thin`` as
+        one record; those keywords replace its fields.
+    rng : None, int, SeedSequence or Generator
+
+    Other Parameters
+    ----------------
     chains : int
         Independent chains run at once (vectorised).
     sigma : float
@@ -454,7 +548,6 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
         ``p_large = 0`` is allowed and can make the chain non-ergodic in
         practice (it cannot cross regions where ``f = 0`` wider than a few
         ``sigma``).
-    rng : None, int, SeedSequence or Generator
     n_bootstrap : int
         Independent candidates of the bootstrap.
     thin : int, optional
@@ -491,16 +584,18 @@ def metropolis(f: Callable, dim: int, n_steps: int, *, chains: int = 64, sigma: 
     """
     if not callable(f):
         raise TypeError(f"f must be callable; got {type(f).__name__}")
-    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(dim, n_steps, chains, sigma, p_large,
-                                                                    n_bootstrap)
-    thin = _stride(n_steps, chains, dim, thin)
+    opts = settings_with(WalkSettings, settings, options, "metropolis")
+    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(dim, n_steps, opts.chains, opts.sigma,
+                                                                    opts.p_large, opts.n_bootstrap)
+    thin = _stride(n_steps, chains, dim, opts.thin)
+    check_walk_budget(dim, chains, n_bootstrap, n_steps, thin)
     rng = as_rng(rng)
 
     def evaluate(u):
         return _evaluate(f, u), None
 
     x, fx, _, b = _bootstrap(evaluate, dim, chains, n_bootstrap, rng)
-    samples, values, accepted, n_acc, done = _walk(evaluate, x, fx, None, n_steps, sigma, p_large, rng,
+    samples, values, accepted, n_acc, done = _walk(evaluate, (x, fx, None), n_steps, (sigma, p_large), rng,
                                                    thin=thin)
     return Chain(samples, values, accepted, n_acc / (done * chains), b, thin, done)
 
@@ -525,8 +620,8 @@ def _pixel_index(u: np.ndarray, height: int, width: int) -> np.ndarray:
     return row * width + col
 
 
-def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_large: float = 0.1, rng=None,
-               splat: str = "plain", n_bootstrap: int = N_BOOTSTRAP, thin: int | None = None) -> Chain:
+def image_walk(image, n_steps: int, settings: WalkSettings | None = None, *, rng=None, splat: str = "plain",
+               **options) -> Chain:
     """The lecture's 'Sampling An Image': a Metropolis walk whose visits reproduce ``image``.
 
     Parameters
@@ -536,11 +631,6 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
         ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (linear values assumed).
     n_steps : int
         Steps per chain.
-    chains : int
-        Chains at once (the lecture's walk is one chain).
-    sigma, p_large, rng, n_bootstrap, thin
-        As in :func:`metropolis`; ``sigma`` is in units of the image width
-        (x) and height (y).
     splat : {'plain', 'expected'}
         How visits build ``Chain.histogram``:
 
@@ -551,6 +641,14 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
           values'; pbrt-v4's MLT film), the expectation of the plain splat
           over the accept/reject coin, so the same walk with less noise,
           and rejected proposals still inform the image.
+
+    Other Parameters
+    ----------------
+    chains : int
+        Chains at once (the lecture's walk is one chain).
+    sigma, p_large, rng, n_bootstrap, thin
+        As in :func:`metropolis`; ``sigma`` is in units of the image width
+        (x) and height (y).
 
     Returns
     -------
@@ -570,9 +668,11 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
     lum = _luminance(image)
     height, width = lum.shape
     check_choice(splat, "splat", ("plain", "expected"))
-    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(2, n_steps, chains, sigma, p_large,
-                                                                    n_bootstrap)
-    thin = _stride(n_steps, chains, dim, thin)
+    opts = settings_with(WalkSettings, IMAGE_WALK if settings is None else settings, options, "image_walk")
+    dim, n_steps, chains, sigma, p_large, n_bootstrap = _check_walk(2, n_steps, opts.chains, opts.sigma,
+                                                                    opts.p_large, opts.n_bootstrap)
+    thin = _stride(n_steps, chains, dim, opts.thin)
+    check_walk_budget(dim, chains, n_bootstrap, n_steps, thin, payload_words=1)
     rng = as_rng(rng)
     flat = lum.ravel()
 
@@ -592,7 +692,7 @@ def image_walk(image, n_steps: int, *, chains: int = 1, sigma: float = 0.02, p_l
             hist[:] += np.bincount(np.where(acc, py, px), minlength=n_pix)
 
     x, fx, px, b = _bootstrap(evaluate, dim, chains, n_bootstrap, rng)
-    samples, values, accepted, n_acc, done = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng,
+    samples, values, accepted, n_acc, done = _walk(evaluate, (x, fx, px), n_steps, (sigma, p_large), rng,
                                                    visit=visit, thin=thin)
     hist = hist.reshape(height, width) / hist.sum()
     return Chain(samples, values, accepted, n_acc / (done * chains), b, thin, done,

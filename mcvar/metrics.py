@@ -12,12 +12,13 @@ tested against.
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
 
-from ._validation import as_array
+from ._validation import as_array, check_bool, check_positive
 
 __all__ = ["mse", "relative_mse", "peak_signal_noise_ratio", "structural_similarity", "LogLogFit",
            "loglog_fit"]
@@ -46,8 +47,7 @@ def relative_mse(reference, estimate, *, eps: float = 1e-2) -> float:
     common choice in the rendering literature (e.g. Rousselle et al. 2011).
     """
     ref, est = _pair(reference, estimate)
-    if not eps > 0:
-        raise ValueError(f"eps must be > 0; got {eps}")
+    eps = check_positive(eps, "eps")
     return float(np.mean((est - ref) ** 2 / (ref ** 2 + eps)))
 
 
@@ -57,6 +57,9 @@ def _data_range(ref: np.ndarray, data_range) -> float:
         if not data_range > 0:
             raise ValueError("reference is constant: pass data_range (e.g. 1.0 for images in [0, 1])")
         return data_range
+    if isinstance(data_range, (bool, np.bool_)) or not isinstance(data_range, numbers.Real):
+        raise TypeError(f"data_range must be a positive finite number; got {type(data_range).__name__} "
+                        f"{data_range!r}")
     data_range = float(data_range)
     if not (np.isfinite(data_range) and data_range > 0):
         raise ValueError(f"data_range must be a positive finite number; got {data_range}")
@@ -94,11 +97,23 @@ def structural_similarity(reference, estimate, *, data_range=None, channel_axis=
     from skimage.metrics import structural_similarity as ssim
 
     ref, est = _pair(reference, estimate)
+    check_bool(gaussian_weights, "gaussian_weights")
     if ref.ndim not in (2, 3):
         raise ValueError(f"reference must be an image (H, W) or (H, W, C); got shape {ref.shape}")
     if channel_axis is None and ref.ndim == 3:
         channel_axis = -1
-    spatial = ref.shape[:2] if channel_axis in (-1, 2) or ref.ndim == 2 else ref.shape[1:]
+    if channel_axis is not None:
+        if isinstance(channel_axis, (bool, np.bool_)) or not isinstance(channel_axis, (int, np.integer)):
+            raise TypeError(f"channel_axis must be None or an int; got {type(channel_axis).__name__}")
+        if ref.ndim != 3 or not -3 <= channel_axis <= 2:
+            raise ValueError(f"channel_axis must be an axis of a colour image (H, W, C): one of -3 .. 2 for "
+                             f"reference of shape {ref.shape}" + (" (a grey image has no channel axis)"
+                                                                  if ref.ndim == 2 else "") + f"; got {channel_axis}")
+        channel_axis = int(channel_axis) % 3
+    spatial = ref.shape if channel_axis is None else tuple(n for i, n in enumerate(ref.shape) if i != channel_axis)
+    if win_size is not None and (isinstance(win_size, (bool, np.bool_))
+                                 or not isinstance(win_size, (int, np.integer))):
+        raise TypeError(f"win_size must be None or an odd int; got {type(win_size).__name__} {win_size!r}")
     win = 7 if win_size is None else int(win_size)
     if win < 3 or win % 2 == 0 or win > min(spatial):
         raise ValueError(f"win_size must be odd, >= 3 and <= the image's smaller side {min(spatial)}; "

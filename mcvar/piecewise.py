@@ -69,16 +69,61 @@ __all__ = ["PiecewiseConstant1D", "PiecewiseConstant2D"]
 # CDFs up to this many entries are searched without sorting the values first (measured
 # on 10^6 values: direct search is faster up to ~64 entries, sorting wins from ~256 on).
 _SMALL_TABLE = 64
+#: A cell must span more than this many floats at its domain's magnitude (so
+#: that a point moved by a few ulps, :func:`_in_cell`, stays inside it).
+_MIN_CELL_ULPS = 16
 
 
-def _interval(lo, hi, name: str) -> tuple[float, float]:
+def _interval(lo, hi, name: str, n: int) -> tuple[float, float]:
+    """``(min, max)`` of a domain of ``n`` equal cells, checked so that the
+    arithmetic of sampling stays exact enough: the width ``max - min`` and
+    the cell density ``n / width`` finite, and each cell wider than a few
+    floats at the domain's magnitude (else cells cannot be told apart and
+    ``pdf(sample(u))`` would not be the returned pdf)."""
     for v, which in ((lo, "min"), (hi, "max")):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
             raise TypeError(f"{name} {which} must be a real number; got {type(v).__name__} {v!r}")
     lo, hi = float(lo), float(hi)
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise ValueError(f"{name} must be finite with min < max; got ({lo}, {hi})")
+    width = hi - lo
+    with np.errstate(over="ignore", divide="ignore"):
+        density = n / width
+    if not (np.isfinite(width) and np.isfinite(density)):
+        raise ValueError(f"{name} ({lo}, {hi}) has a width {width} that overflows, or cells of density "
+                         f"{n} / {width} that do: keep max - min and {n} / (max - min) finite (rescale the domain)")
+    cell = width / n
+    if not cell > _MIN_CELL_ULPS * np.spacing(max(abs(lo), abs(hi))):
+        raise ValueError(f"{name} ({lo}, {hi}) is too narrow for {n} cells at its magnitude: a cell of width "
+                         f"{cell} is not wider than {_MIN_CELL_ULPS} floats ({np.spacing(max(abs(lo), abs(hi)))} "
+                         "each); use fewer cells or shift the domain towards 0")
     return lo, hi
+
+
+def _check_pdf_range(pmf: np.ndarray, density: float, positive=None) -> None:
+    """Every cell that can be sampled (``positive``, default ``pmf > 0``) has a
+    positive, finite pdf ``pmf * density``: a sampled point of pdf 0 (the
+    product underflowing) would be a sample the estimator divides by zero."""
+    positive = pmf > 0 if positive is None else positive
+    if not np.any(positive):
+        return
+    with np.errstate(over="ignore", under="ignore"):
+        pdf = pmf[positive] * density
+    if not (np.all(pdf > 0) and np.all(np.isfinite(pdf))):
+        raise ValueError(f"func and domain give a cell whose pdf ({float(pmf[positive].min())} x {density}) "
+                         "underflows to 0 or overflows: narrow func's range of values (e.g. set cells below "
+                         "1e-250 of its maximum to 0) or rescale the domain")
+
+
+def _smallest_positive_per_row(pmf: np.ndarray, rows: int = 64) -> np.ndarray:
+    """The smallest positive entry of each row (1 for a row without one), a
+    few rows at a time (no temporary of the table's size)."""
+    out = np.ones(pmf.shape[0])
+    for a in range(0, pmf.shape[0], rows):
+        block = pmf[a:a + rows]
+        out[a:a + rows] = np.min(block, axis=1, where=block > 0, initial=np.inf)
+    out[~np.isfinite(out)] = 1.0
+    return out
 
 
 def _unit(u, name: str = "u") -> np.ndarray:
@@ -211,11 +256,12 @@ class PiecewiseConstant1D:
         f = as_array(func, "func", ndim=1, nonnegative=True)
         if f.size == 0:
             raise ValueError("func must hold at least one value; got an empty array")
-        self.min, self.max = _interval(min, max, "domain")
+        self.min, self.max = _interval(min, max, "domain", f.size)
         self.cdf = _cdf_rows(f[None, :])[0]
         self.pmf = np.diff(self.cdf)
         self.integral = float(f.sum()) * (self.max - self.min) / f.size
         self._last = int(_last_positive(self.pmf))
+        _check_pdf_range(self.pmf, f.size / (self.max - self.min))
         for a in (self.cdf, self.pmf):
             a.flags.writeable = False
 
@@ -361,12 +407,20 @@ class PiecewiseConstant2D:
             (u0, u1), (v0, v1) = domain
         except (TypeError, ValueError) as exc:
             raise ValueError(f"domain must be ((umin, umax), (vmin, vmax)); got {domain!r}") from exc
-        self.domain = (_interval(u0, u1, "domain[0]"), _interval(v0, v1, "domain[1]"))
         nv, nu = f.shape
+        self.domain = (_interval(u0, u1, "domain[0]", nu), _interval(v0, v1, "domain[1]", nv))
+        with np.errstate(over="ignore"):
+            density = (nu / (u1 - u0)) * (nv / (v1 - v0))
+            area = (self.domain[0][1] - self.domain[0][0]) * (self.domain[1][1] - self.domain[1][0])
+        if not (np.isfinite(density) and np.isfinite(area) and area > 0):
+            raise ValueError(f"domain {self.domain} has an area ({area}) or a cell density per unit area "
+                             f"({density}) that overflows: rescale the domain")
         self.marginal = PiecewiseConstant1D(f.sum(axis=1), *self.domain[1])
         self.conditional_cdf = _cdf_rows(f)
         self.conditional_pmf = np.diff(self.conditional_cdf, axis=1)
         self._last_col = _last_positive(self.conditional_pmf)
+        _check_pdf_range(self.marginal.pmf * _smallest_positive_per_row(self.conditional_pmf), nu * nv / area,
+                         positive=self.marginal.pmf > 0)
         self._area = (self.domain[0][1] - self.domain[0][0]) * (self.domain[1][1] - self.domain[1][0])
         self.integral = float(f.sum()) * self._area / (nu * nv)
         self._shape = (nv, nu)

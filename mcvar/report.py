@@ -17,13 +17,12 @@ trade of each method and sampler:
   ``MSE x time`` in one table, best first, with the figures embedded as
   base64 PNG (one file to mail or open anywhere).
 
-:func:`demo` is the README's ``mcvar demo``: the Cornell box report.
+The README's ``mcvar demo`` (the Cornell box report) is :func:`mcvar.demo.demo`.
 """
 from __future__ import annotations
 
-import base64
-import csv
 import html
+from dataclasses import replace
 import io
 import os
 import time
@@ -32,34 +31,17 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .experiments import SweepResult, make_target, scene_target, sweep
-from .experiments.chart import LECTURE_CHART
+from ._validation import seed_alias, settings_with
+from .experiments import SweepResult, SweepSettings, make_target, sweep
+from .experiments.chart import lecture_chart_claim, split_row
 from .images import linear_to_srgb
+from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, clauses as _clauses, data_uri as _data_uri,
+                    details as _details, fmt as _fmt, img as _img, table as _table, write_csv as _csv)
 from .plotting import plot_loglog, plt, save_figure
 
-__all__ = ["convergence_report", "demo", "write_report", "pareto_front", "lecture_claim", "DEMO_SETTINGS",
-           "LECTURE_CLAIMS"]
-
-#: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
-#: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
-#: took 50-76 s there; 64 x 64 with those levels took 9 minutes). The reference is
-#: 8 chunks of 256 spp. ``chart``: keyword arguments of :func:`mcvar.experiments.measure_chart`
-#: for the report's measured rendering-methods chart (written to ``out/chart``; None: no chart).
-DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
-                     spp=(1, 4, 16, 64), replicates=6, res=64, seed=0, reference_spp=256,
-                     chart=dict(quick=True))
+__all__ = ["convergence_report", "write_report", "pareto_front", "lecture_claim"]
 
 _LEVEL = 0.999  # interval level of the bias plot: two-sided alpha = 1e-3
-
-
-def _csv(path: Path, rows: list[dict]) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
-    return path
 
 
 def _fit_rows(result: SweepResult) -> list[dict]:
@@ -230,35 +212,8 @@ def _plot_images(result: SweepResult, path: Path) -> Path:
 # HTML
 # --------------------------------------------------------------------------
 
-def _fmt(x, digits=3) -> str:
-    if isinstance(x, (bool, np.bool_)):
-        return "yes" if x else "no"
-    if isinstance(x, (int, np.integer)):
-        return str(x)
-    if not np.isfinite(x):
-        return str(x)
-    return f"{x:.{digits}g}"
-
-
-def _table(header, rows, *, cls: str = "") -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    attr = f' class="{cls}"' if cls else ""
-    return f"<table{attr}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
 def _slope(fit) -> str:
     return f"{fit.slope:.2f} ± {fit.slope_stderr:.2f}" if fit is not None else "n/a"
-
-
-def _data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-
-
-def _img(path: Path, alt: str) -> str:
-    return f'<figure><img alt="{html.escape(alt)}" src="{_data_uri(Path(path).read_bytes())}"/>' \
-           f"<figcaption>{html.escape(alt)}</figcaption></figure>"
 
 
 def _png(rgb8: np.ndarray) -> bytes:
@@ -307,12 +262,8 @@ def _image_tiles(result: SweepResult) -> str:
             f"black 0 to yellow {vmax:.3g} (99th percentile; brighter pixels clipped).</p>")
 
 
-#: The lecture's claims: 'Rendering Algorithm Chart' (consistent?, unbiased?)
-#: per integrator (the chart's table, :data:`mcvar.experiments.chart.LECTURE_CHART`,
-#: without the fixed-depth row), and the 'Bias & Consistency' / 'Consistent Or
-#: Unbiased?' slides for the estimators of the lecture target.
-LECTURE_CLAIMS = {**{m: c for m, c in LECTURE_CHART.items() if m != "path_depth3"},
-                  "mlt": LECTURE_CHART["pssmlt"]}
+#: The lecture's 'Bias & Consistency' / 'Consistent Or Unbiased?' slides for the estimators of the
+#: lecture target (a rendering method's claim is the chart's: :func:`lecture_claim`).
 LECTURE_ESTIMATOR_CLAIMS = {
     "uniform": ("yes", "yes"), "grid": ("yes", "no"), "single": ("no", "yes"), "undivided": ("no", "no"),
 }
@@ -328,18 +279,14 @@ def lecture_claim(target: str, method: str):
     """
     if target == "lecture":
         return LECTURE_ESTIMATOR_CLAIMS.get(method)
-    if ":" in method or "+" in method:
-        return None
-    if method in LECTURE_CLAIMS:  # the slide's own rows are quoted as they are
-        return LECTURE_CLAIMS[method]
+    # the chart's own claim (the slide's row, else the method's registered ``lecture``);
+    # 'mlt' is a target's name for PSSMLT
     try:
-        from .integrators import METHODS  # the registry, for methods the slide does not name
-        claim = getattr(METHODS.get(method), "lecture", None)
-        if claim is not None:
-            return tuple(claim)
-    except ImportError:
-        pass
-    return None
+        if "+" in method or split_row(method)[1] is not None:
+            return None
+        return lecture_chart_claim("pssmlt" if method == "mlt" else method)
+    except (TypeError, ValueError, ImportError):
+        return None
 
 
 def _verdict_table(result: SweepResult) -> str:
@@ -352,43 +299,118 @@ def _verdict_table(result: SweepResult) -> str:
                    "lecture: unbiased?", "lecture: consistent?"), rows, cls="verdicts")
 
 
-def _clauses(text: str) -> list[str]:
-    """Split evidence at the '; ' that are outside parentheses."""
-    parts, depth, start = [], 0, 0
-    for i, ch in enumerate(text):
-        depth += (ch == "(") - (ch == ")")
-        if depth == 0 and text.startswith("; ", i):
-            parts.append(text[start:i])
-            start = i + 2
-    return [p for p in parts + [text[start:]] if p]
+def _configurations(result: SweepResult, xlabel: str) -> tuple[list, list]:
+    """The table of every configuration, best figure of merit first: (header, rows)."""
+    quality = any(np.isfinite(m.ssim) for m in result.metrics)
+    ranked = sorted(result.metrics, key=lambda m: (m.figure_of_merit, m.method, m.sampler, m.spp))
+    efficient = {(m.method, m.sampler, m.spp) for m, e in _frontier(result) if e}
+    rows = []
+    for i, m in enumerate(ranked):
+        row = [i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
+               _fmt((m.method, m.sampler, m.spp) in efficient), _fmt(m.mse), _fmt(m.seconds),
+               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
+               "exact (zero variance)" if m.deterministic else f"{m.bias_z:.2f}",
+               _fmt(m.bias_pvalue), _fmt(m.bias_detected)]
+        if quality:
+            row += [_fmt(m.psnr, 4), _fmt(m.ssim, 3)]
+        rows.append(row)
+    header = ["rank", "method", "sampler", xlabel, "MSE x time", "verdict", "efficient", "MSE", "seconds",
+              "efficiency", "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"]
+    if quality:
+        header += ["PSNR (dB)", "SSIM"]
+    return header, rows
 
 
-def _details(summary: str, *content: str, open_: bool = False) -> str:
-    attr = " open" if open_ else ""
-    return f"<details{attr}><summary>{html.escape(summary)}</summary>{''.join(content)}</details>"
+def _facts(result: SweepResult, xlabel: str, elapsed, command) -> list:
+    """The settings table: (setting, value) pairs."""
+    ref = result.reference
+    facts = [
+        ("target", result.target),
+        ("methods", ", ".join(result.methods)), ("samplers", ", ".join(result.samplers)),
+        (f"{xlabel} levels", ", ".join(map(str, result.spp))),
+        ("replicates per configuration", result.replicates), ("seed", result.seed),
+        ("reference", ref.source),
+        ("runs computed / loaded from cache", f"{result.computed} / {result.cached}"),
+        ("cores on this machine", os.cpu_count()),
+    ]
+    if ref.value.ndim == 3:
+        facts.insert(1, ("resolution", f"{ref.value.shape[1]} x {ref.value.shape[0]}"))
+    if elapsed is not None:
+        facts.append(("wall time of the sweep", f"{elapsed:.1f} s"))
+    if command:
+        facts.append(("command", command))
+    return facts
 
 
-_CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:1.5em auto;padding:0 1em;color:#222;
-line-height:1.45}h1{font-size:1.6em;margin-bottom:.2em}h2{margin-top:1.4em}.lead{color:#555;margin-top:0}
-table{border-collapse:collapse;font-size:13px;margin:.5em 0 1em}td,th{border:1px solid #ccc;padding:3px 7px;
-text-align:right}th{background:#f3f3f3}td:first-child,td:nth-child(2){text-align:left}
-table.verdicts td{text-align:center}table.verdicts td:first-child{text-align:left;font-weight:600}
-img{max-width:100%}figure{margin:.6em 0}figcaption{font-size:12px;color:#555}code{background:#f3f3f3}
-.tiles{display:flex;flex-wrap:wrap;gap:12px}.col{display:flex;flex-direction:column}
-.tile img{width:256px;height:auto;image-rendering:pixelated}
-.note{font-size:12px;color:#555}.scroll{overflow-x:auto}details{border:1px solid #ddd;border-radius:4px;padding:.3em .8em;
-margin:.6em 0}summary{cursor:pointer;font-weight:600}ul.evidence li{margin:.2em 0}
-table.chart td,table.chart th{text-align:center}table.chart td:first-child,table.chart td:nth-child(2){text-align:left}
-table.chart td:first-child{font-weight:600}table.chart td:last-child{text-align:left;max-width:30em}
-table.chart td.differs{background:#fbe2c5}table.chart td.agrees{background:#e3f1e0}
-@media print{body{max-width:none;margin:0}details{border:none;padding:0}
-details::details-content{content-visibility:visible;display:contents}
-summary{list-style:none;font-size:1.2em}figure,tr,.tiles{break-inside:avoid}
-.scroll{overflow:visible}table.configs{font-size:9px}}"""
+def _summary(result: SweepResult, paths: dict, xlabel: str, elapsed) -> list:
+    """What a reader wants first: the verdicts, the speed-for-accuracy frontier, the images."""
+    ref = result.reference
+    is_image = ref.value.ndim == 3
+    front = sorted((m for m, e in _frontier(result) if e), key=lambda m: m.seconds)
+    front_text = ", ".join(f"{m.method} / {m.sampler} at {m.spp} {xlabel}" for m in front[:8])
+    shape = (f"{ref.value.shape[1]} x {ref.value.shape[0]} pixels, " if is_image else "")
+    body = [
+        f"<h1>Convergence report: {html.escape(result.target)}</h1>",
+        f"<p class='lead'>{shape}{len(result.methods)} methods x {len(result.samplers)} samplers x "
+        f"{len(result.spp)} {xlabel} levels x {result.replicates} replicates"
+        + (f", {elapsed:.0f} s" if elapsed is not None else "") + ".</p>",
+        "<h2>Verdicts</h2>",
+        "<p>The lecture asks of each method: is it unbiased, is it consistent? Measured here: "
+        "<b>unbiased</b> when no configuration's bias is distinguishable from zero (Welch t test, "
+        f"Sidak-corrected to family-wise alpha = {result.alpha:g}); <b>consistent</b> when, for every "
+        "sampler, the MSE falls with " + xlabel + " and the bias vanishes. The evidence is below.</p>",
+        _verdict_table(result),
+        "<h2>Speed for accuracy</h2>",
+        "<p>MSE against wall time per estimate, one curve per method and sampler (points: the "
+        f"{xlabel} levels). Starred: the efficient configurations, those no other configuration beats "
+        "in both time and MSE" + (f": {html.escape(front_text)}" + (f" and {len(front) - 8} more" if len(front) > 8
+                                                                   else "") if front else "") + ".</p>",
+        _img(paths["mse_time"], "MSE against wall time per estimate; stars mark the efficient (Pareto) "
+                                "configurations."),
+    ]
+    if is_image:
+        body += ["<h2>Images</h2>", _image_tiles(result)]
+    return body
 
-# Opens every collapsed section before printing (print CSS covers browsers with ::details-content).
-_PRINT_JS = ("<script>addEventListener('beforeprint',function(){document.querySelectorAll('details')"
-             ".forEach(function(d){d.open=true})})</script>")
+
+def _detail_sections(result: SweepResult, paths: dict, xlabel: str, fit_rows: list, facts: list) -> list:
+    """The collapsible sections: evidence, fitted rates, every configuration, figures, settings."""
+    is_image = "images" in paths
+    fom_header, fom_rows = _configurations(result, xlabel)
+    quality = len(fom_header) > 16
+    evidence = []
+    for v in result.verdicts.values():
+        items = "".join(f"<li>{html.escape(part)}</li>" for part in _clauses(v.evidence))
+        evidence.append(f"<h3>{html.escape(v.method)}: {html.escape(v.label)}</h3><ul class='evidence'>"
+                        f"{items}</ul>")
+    return [
+        "<h2>Details</h2>",
+        _details("Evidence behind each verdict", *evidence),
+        _details("Fitted rates",
+                 "<p>Least-squares slopes of log(quantity) against log(" + xlabel + ") (MSE also against "
+                 "log(time)), ± their standard errors. Plain Monte Carlo variance falls as 1/N (slope -1); "
+                 "stratified and QMC samplers can do better on smooth integrands.</p>",
+                 _table(("method", "sampler", f"variance vs {xlabel}", f"MSE vs {xlabel}", "MSE vs time",
+                         f"bias² vs {xlabel}", "consistent"), fit_rows)),
+        _details(f"Every configuration: figure of merit MSE x time, best first ({len(fom_rows)} rows)",
+                 "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a "
+                 "method would reach in one second, assuming MSE ~ 1/time, true of unbiased, consistent "
+                 "methods only: a biased method's MSE stops at its squared bias, so read its rank with "
+                 "its verdict. For comparison, a mature LLVM renderer reaches about 5e-6 on the Cornell "
+                 "box at 64 x 64 and 256 spp with a multi-jittered sampler (about 1.4e-4 with independent "
+                 "sampling)." + (" PSNR and SSIM: of the displayed (sRGB) image against the reference, "
+                                 "mean over replicates." if quality else "") + "</p>",
+                 f'<div class="scroll">{_table(fom_header, fom_rows, cls="configs")}</div>'),
+        _details("More figures",
+                 _img(paths["variance"], f"Variance against {xlabel}, log-log, fitted slopes in the "
+                                         "legends (dotted: slope -1)."),
+                 _img(paths["bias"], f"Bias of the mean value with its {_LEVEL:.1%} interval; an "
+                                     "interval away from 0 is a detected bias."),
+                 _img(paths["efficiency"], "Efficiency 1 / (MSE x time) per configuration."),
+                 *([_img(paths["images"], "Reference, one estimate per method at the largest spp, and "
+                                          "the per-pixel variance across replicates.")] if is_image else [])),
+        _details("Settings", _table(("setting", "value"), [(k, v) for k, v in facts])),
+    ]
 
 
 def write_report(result: SweepResult, out, *, elapsed: float | None = None,
@@ -440,100 +462,10 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     if is_image:
         paths["images"] = _plot_images(result, out / "images.png")
 
-    quality = any(np.isfinite(m.ssim) for m in result.metrics)
     fit_rows = [(f.method, f.sampler, _slope(f.variance), _slope(f.mse), _slope(f.mse_time),
                  _slope(f.bias2), _fmt(f.consistent)) for f in result.fits.values()]
-    ranked = sorted(result.metrics, key=lambda m: (m.figure_of_merit, m.method, m.sampler, m.spp))
-    efficient = {(m.method, m.sampler, m.spp) for m, e in _frontier(result) if e}
-    fom_rows = []
-    for i, m in enumerate(ranked):
-        row = [i + 1, m.method, m.sampler, m.spp, _fmt(m.figure_of_merit), result.verdicts[m.method].label,
-               _fmt((m.method, m.sampler, m.spp) in efficient), _fmt(m.mse), _fmt(m.seconds),
-               _fmt(m.efficiency), _fmt(m.rel_mse), _fmt(m.variance), _fmt(m.bias2),
-               "exact (zero variance)" if m.deterministic else f"{m.bias_z:.2f}",
-               _fmt(m.bias_pvalue), _fmt(m.bias_detected)]
-        if quality:
-            row += [_fmt(m.psnr, 4), _fmt(m.ssim, 3)]
-        fom_rows.append(row)
-    fom_header = ["rank", "method", "sampler", xlabel, "MSE x time", "verdict", "efficient", "MSE", "seconds",
-                  "efficiency", "rel. MSE", "variance", "bias²", "bias t", "bias p", "bias detected"]
-    if quality:
-        fom_header += ["PSNR (dB)", "SSIM"]
-    ref = result.reference
-    facts = [
-        ("target", result.target),
-        ("methods", ", ".join(result.methods)), ("samplers", ", ".join(result.samplers)),
-        (f"{xlabel} levels", ", ".join(map(str, result.spp))),
-        ("replicates per configuration", result.replicates), ("seed", result.seed),
-        ("reference", ref.source),
-        ("runs computed / loaded from cache", f"{result.computed} / {result.cached}"),
-        ("cores on this machine", os.cpu_count()),
-    ]
-    if is_image:
-        facts.insert(1, ("resolution", f"{ref.value.shape[1]} x {ref.value.shape[0]}"))
-    if elapsed is not None:
-        facts.append(("wall time of the sweep", f"{elapsed:.1f} s"))
-    if command:
-        facts.append(("command", command))
-
-    front = sorted((m for m, e in _frontier(result) if e), key=lambda m: m.seconds)
-    front_text = ", ".join(f"{m.method} / {m.sampler} at {m.spp} {xlabel}" for m in front[:8])
-    evidence = []
-    for v in result.verdicts.values():
-        items = "".join(f"<li>{html.escape(part)}</li>" for part in _clauses(v.evidence))
-        evidence.append(f"<h3>{html.escape(v.method)}: {html.escape(v.label)}</h3><ul class='evidence'>"
-                        f"{items}</ul>")
-    shape = (f"{ref.value.shape[1]} x {ref.value.shape[0]} pixels, " if is_image else "")
-    body = [
-        f"<h1>Convergence report: {html.escape(result.target)}</h1>",
-        f"<p class='lead'>{shape}{len(result.methods)} methods x {len(result.samplers)} samplers x "
-        f"{len(result.spp)} {xlabel} levels x {result.replicates} replicates"
-        + (f", {elapsed:.0f} s" if elapsed is not None else "") + ".</p>",
-        "<h2>Verdicts</h2>",
-        "<p>The lecture asks of each method: is it unbiased, is it consistent? Measured here: "
-        "<b>unbiased</b> when no configuration's bias is distinguishable from zero (Welch t test, "
-        f"Sidak-corrected to family-wise alpha = {result.alpha:g}); <b>consistent</b> when, for every "
-        "sampler, the MSE falls with " + xlabel + " and the bias vanishes. The evidence is below.</p>",
-        _verdict_table(result),
-        "<h2>Speed for accuracy</h2>",
-        "<p>MSE against wall time per estimate, one curve per method and sampler (points: the "
-        f"{xlabel} levels). Starred: the efficient configurations, those no other configuration beats "
-        "in both time and MSE" + (f": {html.escape(front_text)}" + (f" and {len(front) - 8} more" if len(front) > 8
-                                                                   else "") if front else "") + ".</p>",
-        _img(paths["mse_time"], "MSE against wall time per estimate; stars mark the efficient (Pareto) "
-                                "configurations."),
-    ]
-    if is_image:
-        body += ["<h2>Images</h2>", _image_tiles(result)]
-    body += list(sections)
-    body += [
-        "<h2>Details</h2>",
-        _details("Evidence behind each verdict", *evidence),
-        _details("Fitted rates",
-                 "<p>Least-squares slopes of log(quantity) against log(" + xlabel + ") (MSE also against "
-                 "log(time)), ± their standard errors. Plain Monte Carlo variance falls as 1/N (slope -1); "
-                 "stratified and QMC samplers can do better on smooth integrands.</p>",
-                 _table(("method", "sampler", f"variance vs {xlabel}", f"MSE vs {xlabel}", "MSE vs time",
-                         f"bias² vs {xlabel}", "consistent"), fit_rows)),
-        _details(f"Every configuration: figure of merit MSE x time, best first ({len(fom_rows)} rows)",
-                 "<p>MSE x seconds per estimate = 1 / efficiency (Veach 1997, sec. 2.4.3): the MSE a "
-                 "method would reach in one second, assuming MSE ~ 1/time, true of unbiased, consistent "
-                 "methods only: a biased method's MSE stops at its squared bias, so read its rank with "
-                 "its verdict. For comparison, a mature LLVM renderer reaches about 5e-6 on the Cornell "
-                 "box at 64 x 64 and 256 spp with a multi-jittered sampler (about 1.4e-4 with independent "
-                 "sampling)." + (" PSNR and SSIM: of the displayed (sRGB) image against the reference, "
-                                 "mean over replicates." if quality else "") + "</p>",
-                 f'<div class="scroll">{_table(fom_header, fom_rows, cls="configs")}</div>'),
-        _details("More figures",
-                 _img(paths["variance"], f"Variance against {xlabel}, log-log, fitted slopes in the "
-                                         "legends (dotted: slope -1)."),
-                 _img(paths["bias"], f"Bias of the mean value with its {_LEVEL:.1%} interval; an "
-                                     "interval away from 0 is a detected bias."),
-                 _img(paths["efficiency"], "Efficiency 1 / (MSE x time) per configuration."),
-                 *([_img(paths["images"], "Reference, one estimate per method at the largest spp, and "
-                                          "the per-pixel variance across replicates.")] if is_image else [])),
-        _details("Settings", _table(("setting", "value"), [(k, v) for k, v in facts])),
-    ]
+    body = _summary(result, paths, xlabel, elapsed) + list(sections)
+    body += _detail_sections(result, paths, xlabel, fit_rows, _facts(result, xlabel, elapsed, command))
     if progress_note:
         body.append(f"<p>{html.escape(progress_note)}</p>")
     body.append("<p class='note'>Every number is in <code>results.csv</code> and <code>fits.csv</code> "
@@ -548,9 +480,8 @@ def write_report(result: SweepResult, out, *, elapsed: float | None = None,
     return {"html": paths.pop("html"), **paths}
 
 
-def convergence_report(target, out, *, methods=None, samplers=None, spp=None, replicates: int = 8,
-                       res: int = 32, seed: int = 0, workers: int | None = None,
-                       progress: bool = True, executor=None, reference=None, sections=()) -> dict[str, Path]:
+def convergence_report(target, out, settings: SweepSettings | None = None, *, executor=None, reference=None,
+                       sections=(), **options) -> dict[str, Path]:
     """Sweep ``target`` and write its convergence report into ``out``.
 
     Parameters
@@ -562,58 +493,34 @@ def convergence_report(target, out, *, methods=None, samplers=None, spp=None, re
         Output folder; finished runs and references are cached in
         ``out/.cache``, so re-running (or resuming an interrupted run) only
         computes what is missing.
+    settings : SweepSettings, optional
+        The sweep's settings; the keywords ``methods``, ``samplers``,
+        ``spp``, ``replicates`` (default 8), ``res`` (32), ``rng`` (0;
+        ``seed=`` is its deprecated alias), ``workers`` and ``progress`` are
+        its fields and replace them.
+    executor, reference
+        As in :func:`mcvar.experiments.sweep`.
+    sections : sequence of str, optional
+        Further HTML sections for the page (:func:`write_report`).
+
+    Other Parameters
+    ----------------
     methods, samplers, spp : sequence, optional
         Default per target: scenes ``path`` (Russian roulette), ``path:2``
         (fixed depth) and ``direct``; samplers random, jittered, sobol;
         spp 1, 4, 16, 64. Integrands: every estimator of the problem; N = 1,
         4, ..., 4096.
-    replicates, res, seed, workers, executor, reference
-        As in :func:`mcvar.experiments.sweep`.
-    sections : sequence of str, optional
-        Further HTML sections for the page (:func:`write_report`).
 
     Returns
     -------
     dict of str to Path
         ``html`` (the summary page) first, then the CSVs and figures.
     """
-    target = make_target(target, res=res)
+    settings = settings_with(SweepSettings, settings, seed_alias(options, "convergence_report"),
+                             "convergence_report")
+    target = make_target(target, res=settings.res)
     start = time.perf_counter()
-    result = sweep(target, methods=methods, samplers=samplers, spp=spp, replicates=replicates,
-                   seed=seed, reference=reference, executor=executor, workers=workers,
-                   cache_dir=Path(out) / ".cache", progress=progress, image_metrics=True)
+    result = sweep(target, replace(settings, image_metrics=True), reference=reference, executor=executor,
+                   cache_dir=Path(out) / ".cache")
     elapsed = time.perf_counter() - start
     return write_report(result, out, elapsed=elapsed, sections=sections)
-
-
-def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str, Path]:
-    """The default Cornell-box convergence report (``mcvar demo``).
-
-    Runs :func:`convergence_report` on ``'cornell'`` with
-    :data:`DEMO_SETTINGS`: path tracing with Russian roulette (unbiased),
-    path tracing stopped at depth 3 (biased: the light of longer paths is
-    missing) and direct lighting, each with the random, jittered and Sobol
-    samplers at 1, 4, 16 and 64 spp, 6 replicates, 64 x 64 pixels, against a
-    reference of 8 x 256 spp (its own variance enters every test).
-
-    The report includes the lecture's Rendering Algorithm Chart measured by
-    ``mcvar chart --quick`` (:mod:`mcvar.chart_report`; its files in
-    ``out/chart``).
-    """
-    s = DEMO_SETTINGS
-    sections, chart_paths = [], {}
-    if s.get("chart") is not None:
-        from .chart_report import chart_section, write_chart
-        from .experiments import measure_chart
-
-        chart = measure_chart(workers=workers, progress=progress, cache_dir=Path(out) / "chart" / ".cache",
-                              **s["chart"])
-        chart_paths = write_chart(chart, Path(out) / "chart", command="mcvar chart --quick")
-        sections.append(chart_section(chart, chart_paths["png"])
-                        + "<p class='note'>Also in <code>chart/chart.html</code> and <code>chart/chart.csv"
-                          "</code> beside this page.</p>")
-    target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
-    paths = convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
-                               replicates=s["replicates"], res=s["res"], seed=s["seed"],
-                               workers=workers, progress=progress, sections=sections)
-    return {**paths, **{f"chart_{k}": v for k, v in chart_paths.items()}}

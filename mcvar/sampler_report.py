@@ -14,7 +14,6 @@ writes
 """
 from __future__ import annotations
 
-import csv
 import math
 import warnings
 from pathlib import Path
@@ -26,29 +25,15 @@ from tqdm.auto import tqdm
 from . import discrepancy as disc
 from ._validation import check_count
 from .metrics import loglog_fit
+from .pages import write_csv
 from .plotting import plot_loglog, plt, save_figure
 from .samplers import SAMPLERS
 
-__all__ = ["EXPECTED_STAR_SLOPES", "discrepancy_sweep", "write_samplers_report"]
+__all__ = ["discrepancy_sweep", "write_samplers_report"]
 
-#: Expected log-log slope of the star discrepancy versus n, and where it comes from.
-#: For the nets the log factors make the slope fitted on n = 64 ... 4096 read
-#: about -1 + a / ln n (-0.85 for log n / n, -0.7 for log^2 n / n).
-EXPECTED_STAR_SLOPES = {
-    "random": (-0.5, "E D* ~ c n^-1/2 (sqrt(n) D* has a limit law)"),
-    "grid": (-0.5, "a row of sqrt(n) points enters a box at once"),
-    "jittered": (-0.75, "E D* <= C n^-3/4 sqrt(log n) (Pausinger & Steinerberger 2016)"),
-    "n_rooks": (-0.5, "like random for 2D boxes (Doerr, Doerr & Gnewuch 2018)"),
-    "multi_jittered": (-0.75, "jittered, so at least n^-3/4"),
-    "hammersley": (-1.0, "O(log n / n) for n = 2^m: a (0, m, 2)-net"),
-    "halton": (-1.0, "O(log^2 n / n)"),
-    "sobol": (-1.0, "O(log n / n): (0, m, 2)-nets"),
-    "blue_noise": (-0.5, "dart throwing is not hyperuniform: P(k -> 0) ~ 0.1 > 0, so box counts "
-                         "fluctuate like random ones, ~0.3x smaller; -0.5 asymptotically"),
-}
+# Each sampler's expected star-discrepancy slope, whether it needs square counts and
+# whether it is randomized are fields of its record (mcvar.samplers.Sampler).
 
-_RANDOMIZED = ("random", "jittered", "n_rooks", "multi_jittered", "sobol", "blue_noise")
-_SQUARE = ("grid", "jittered")
 _FIT_FROM = 64  # fit slopes on n >= 64, as the issue asks (small n is pre-asymptotic)
 
 
@@ -60,11 +45,26 @@ def _points(name: str, n: int, rng) -> np.ndarray:
 
 def _usable_n(name: str, n: int) -> int:
     """n itself, or the largest perfect square <= n for samplers that need one."""
-    return math.isqrt(n) ** 2 if name in _SQUARE else n
+    return math.isqrt(n) ** 2 if SAMPLERS[name].square else n
 
 
-def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, seed=0,
-                      progress: bool = False) -> list[dict]:
+def _root(rng, seed, where: str) -> np.random.SeedSequence:
+    """The report's root SeedSequence from ``rng`` (None: 0, an int, a SeedSequence or a
+    Generator's own sequence); ``seed`` is the deprecated alias of ``rng``."""
+    if seed is not None:
+        if rng is not None:
+            raise TypeError(f"{where} got both rng= and its deprecated alias seed=; pass rng= only")
+        warnings.warn(f"{where}(seed=...) is deprecated: pass rng=", DeprecationWarning, stacklevel=3)
+        rng = seed
+    if isinstance(rng, np.random.SeedSequence):
+        return rng
+    if isinstance(rng, np.random.Generator):
+        return rng.bit_generator.seed_seq
+    return np.random.SeedSequence(check_count(0 if rng is None else rng, "rng", allow_zero=True))
+
+
+def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, rng=None,
+                      progress: bool = False, seed=None) -> list[dict]:
     """Star and L2-star discrepancy of every sampler at every n.
 
     Parameters
@@ -77,9 +77,9 @@ def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, seed=0,
     replicates : int
         Independent realizations per n for randomized samplers (deterministic
         ones are computed once).
-    seed : int or SeedSequence
+    rng : None, int, SeedSequence or Generator
         Root of the independent streams (one spawned per sampler, n and
-        replicate).
+        replicate); None: 0. ``seed=`` is its deprecated alias.
     progress : bool
         Show a tqdm progress bar.
 
@@ -96,10 +96,10 @@ def discrepancy_sweep(n_values, *, names=None, replicates: int = 4, seed=0,
             raise ValueError(f"names must hold sampler names {tuple(SAMPLERS)}; got {name!r}")
     reps = check_count(replicates, "replicates")
     ns = sorted({check_count(int(n), "n_values") for n in n_values})
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    root = _root(rng, seed, "discrepancy_sweep")
     tasks = []
     for name, stream in zip(names, root.spawn(len(names))):
-        r = reps if name in _RANDOMIZED else 1
+        r = 1 if SAMPLERS[name].deterministic else reps
         sizes = [n for n in ns if _usable_n(name, n) == n]
         for n, sub in zip(sizes, stream.spawn(len(sizes))):
             tasks.append((name, n, sub.spawn(r)))
@@ -129,15 +129,6 @@ def _fit_rows(rows: list[dict]):
     return keep if keep.sum() >= 3 else None
 
 
-def _write_csv(path: Path, rows: list[dict]) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
-
-
 def _grid_axes(count: int, size: float = 2.6):
     cols = 3
     rows = int(math.ceil(count / cols))
@@ -147,8 +138,8 @@ def _grid_axes(count: int, size: float = 2.6):
     return fig, axes.flat
 
 
-def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
-                          progress: bool = True) -> dict[str, Path]:
+def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, rng=None,
+                          progress: bool = True, seed=None) -> dict[str, Path]:
     """Write the samplers report (figures and CSVs) into the folder ``out``.
 
     Parameters
@@ -161,8 +152,9 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
     n_max : int
         Largest n of the discrepancy sweep n = 16, 32, ..., n_max (powers of
         2; >= 16). Slopes are fitted on n >= 64.
-    seed : int
-        Root seed; the same seed gives the same numbers.
+    rng : None, int, SeedSequence or Generator
+        Root seed (None: 0); the same seed gives the same numbers. ``seed=``
+        is its deprecated alias.
     progress : bool
         Show progress bars.
 
@@ -191,7 +183,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
         raise ValueError(f"n_max must be >= 16; got {n_max}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    root = np.random.SeedSequence(check_count(seed, "seed", allow_zero=True))
+    root = _root(rng, seed, "write_samplers_report")
     points_seed, spectra_seed, sweep_seed = root.spawn(3)
     names = list(SAMPLERS)
     paths: dict[str, Path] = {}
@@ -213,7 +205,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
     for ax, name, s in tqdm(list(zip(axes, names, spectra_seed.spawn(len(names)))), desc="spectra",
                             disable=not progress, leave=False):
         m = _usable_n(name, n)
-        reps = 8 if name in _RANDOMIZED else 1
+        reps = 1 if SAMPLERS[name].deterministic else 8
         spectra = [disc.power_spectrum(_points(name, m, np.random.default_rng(g))) for g in s.spawn(reps)]
         power = np.mean([p.power for p in spectra], axis=0)
         centre = power.shape[0] // 2
@@ -242,7 +234,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
 
     # --- discrepancy versus n
     ns = [2 ** k for k in range(4, int(math.log2(n_max)) + 1)]
-    rows = discrepancy_sweep(ns, names=names, replicates=4, seed=sweep_seed, progress=progress)
+    rows = discrepancy_sweep(ns, names=names, replicates=4, rng=sweep_seed, progress=progress)
     slopes = []
     fig, axes = _grid_axes(len(names), size=3.3)
     for ax, name in zip(axes, names):
@@ -255,7 +247,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
         if keep is not None:
             fit = plot_loglog(ax, x[keep], y[keep], label="D*", yerr=err[keep])
             ax.plot(x[~keep], y[~keep], "o", mfc="none", ms=3, color="gray")
-        expected, why = EXPECTED_STAR_SLOPES[name]
+        expected, why = SAMPLERS[name].star_slope, SAMPLERS[name].star_slope_why
         a = int(np.argmax(keep)) if keep is not None else 0  # anchor at the first fitted n
         ax.plot(x, y[a] * (x / x[a]) ** expected, ls=":", color="gray", label=f"n^{expected:g}")
         l2fit = loglog_fit(x[keep], np.array([r["l2_star"] for r in mine])[keep]) if keep is not None else None
@@ -275,7 +267,7 @@ def write_samplers_report(out, *, n: int = 256, n_max: int = 4096, seed=0,
     fig.tight_layout()
     paths["discrepancy"] = save_figure(fig, out / "discrepancy.png")
 
-    paths["discrepancy_csv"] = _write_csv(out / "discrepancy.csv", rows)
-    paths["slopes_csv"] = _write_csv(out / "slopes.csv", slopes)
-    paths["spectra_csv"] = _write_csv(out / "spectra.csv", spectra_rows)
+    paths["discrepancy_csv"] = write_csv(out / "discrepancy.csv", rows)
+    paths["slopes_csv"] = write_csv(out / "slopes.csv", slopes)
+    paths["spectra_csv"] = write_csv(out / "spectra.csv", spectra_rows)
     return paths

@@ -7,7 +7,9 @@ past an array. ``n = 0`` gives an empty ``(0, d)`` array (as
 :mod:`scipy.stats.qmc`); a call needing more than :data:`MAX_BYTES` of memory
 is refused with a ``ValueError`` before anything is allocated. The same
 ``rng`` (seed or Generator state) gives the same points. :data:`SAMPLERS`
-maps the names to the functions; :func:`get_sampler` looks one up;
+maps the names to :class:`Sampler` records (the function and everything the
+rest of mcvar needs to know about it; a record is called like its function);
+:func:`get_sampler` looks a function up, :func:`register_sampler` adds one;
 :func:`pixel_samples` draws an independently randomized set per pixel,
 vectorised over pixels, for the tracer.
 
@@ -19,18 +21,25 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import qmc
 
-from ._validation import as_points, as_rng, check_choice, check_count, check_positive
+from ._validation import MEMORY_BUDGET, as_points, as_rng, check_bool, check_choice, check_count, check_positive
 
 __all__ = [
+    "Sampler",
     "SAMPLERS",
     "DETERMINISTIC",
     "get_sampler",
+    "sampler_record",
+    "register_sampler",
+    "shifted_pixel_sets",
     "pixel_samples",
+    "pixel_sample_columns",
     "cranley_patterson",
     "digital_shift",
     "radical_inverse",
@@ -56,16 +65,11 @@ _FRACTION_BITS = 52  # digital shifts act on the first 52 binary digits
 #: much before anything is allocated, instead of dying in a ``MemoryError``
 #: deep inside NumPy. Override it for the session, e.g.
 #: ``mcvar.samplers.MAX_BYTES = 16 * 2**30`` (docs/conventions.md, 'Memory').
-MAX_BYTES = 4 * 2 ** 30
+MAX_BYTES = MEMORY_BUDGET
 
-# Peak working memory of each generator, in 8-byte words per output
-# coordinate (output, jitter, index and permutation arrays alive at once):
-# tracemalloc peaks at n = 2^16 (blue noise 2^14), rounded up with a margin
-# (measured: random 1.0, grid 2.1, jittered 3.1, n_rooks 3.0, multi_jittered
-# 1.6, hammersley/halton 3.6, sobol 9.1 (scipy), blue_noise 24, pixel_samples
-# at most 7.0).
-_WORDS_PER_COORD = {"random": 2, "grid": 3, "jittered": 4, "n_rooks": 4, "multi_jittered": 3,
-                    "hammersley": 4, "halton": 4, "sobol": 10, "blue_noise": 32, "pixel_samples": 8}
+# Peak working memory of pixel_samples, in 8-byte words per output coordinate
+# (measured at most 7.0, see Sampler.words_per_coord for the generators').
+_PIXEL_WORDS = 8
 
 
 def _fmt_bytes(b: float) -> str:
@@ -77,8 +81,9 @@ def _fmt_bytes(b: float) -> str:
 
 
 def _check_memory(n: int, d: int, sampler: str, *, what: str = "n", sets: int = 1) -> None:
-    """ValueError before allocating if ``sets * n * d`` coordinates need more than :data:`MAX_BYTES`."""
-    words = _WORDS_PER_COORD[sampler]
+    """ValueError before allocating if ``sets * n * d`` coordinates need more than :data:`MAX_BYTES`
+    (``sampler`` names a record of :data:`SAMPLERS`, or is ``'pixel_samples'``)."""
+    words = _PIXEL_WORDS if sampler == "pixel_samples" else SAMPLERS[sampler].words_per_coord
     need = 8.0 * words * float(sets) * float(n) * float(d)
     limit = MAX_BYTES
     if need > limit:
@@ -398,6 +403,7 @@ def hammersley(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarr
            [0.5 , 0.25],
            [0.75, 0.75]])
     """
+    scramble = check_bool(scramble, "scramble")
     d = _check_dim(dim)
     n = _count(n, d, "hammersley")
     if n == 0:
@@ -438,6 +444,7 @@ def halton(n, *, rng=None, dim: int = 2, scramble: bool = False) -> np.ndarray:
     J. H. Halton, "On the efficiency of certain quasi-random sequences of
     points in evaluating multi-dimensional integrals", Numer. Math. 2, 1960.
     """
+    scramble = check_bool(scramble, "scramble")
     d = _check_dim(dim)
     n = _count(n, d, "halton")
     if n == 0:
@@ -487,6 +494,7 @@ def sobol(n, *, rng=None, dim: int = 2, scramble: bool = True) -> np.ndarray:
     J. Matousek, "On the L2-discrepancy for anchored boxes", J. Complexity
     14(4), 1998.
     """
+    scramble = check_bool(scramble, "scramble")
     d = _check_dim(dim)
     n = _count(n, d, "sobol")
     if n == 0:
@@ -734,34 +742,11 @@ def multi_jittered(n, *, rng=None, correlated: bool = False) -> np.ndarray:
     A. Kensler, "Correlated multi-jittered sampling", Pixar Technical Memo
     13-01, 2013.
     """
+    correlated = check_bool(correlated, "correlated")
     if not isinstance(correlated, (bool, np.bool_)):
         raise TypeError(f"correlated must be a bool; got {type(correlated).__name__}")
     n = _count(n, 2, "multi_jittered")
     return _multi_jittered_sets(1, n, as_rng(rng), bool(correlated))[0] if n else _empty(2)
-
-
-#: The samplers by name (the tracer and the reports look them up here).
-SAMPLERS = {
-    "random": random,
-    "grid": grid,
-    "jittered": jittered,
-    "n_rooks": n_rooks,
-    "multi_jittered": multi_jittered,
-    "hammersley": hammersley,
-    "halton": halton,
-    "sobol": sobol,
-    "blue_noise": blue_noise,
-}
-
-#: Samplers whose default options ignore ``rng``: the same points every call.
-#: Independent, unbiased replicates of them need a randomization such as
-#: :func:`digital_shift` (which keeps (0, m, 2)-nets nets).
-DETERMINISTIC = frozenset({"grid", "hammersley", "halton"})
-
-
-def get_sampler(name: str):
-    """The sampler function called ``name``; ValueError listing the valid names otherwise."""
-    return SAMPLERS[check_choice(name, "sampler name", SAMPLERS)]
 
 
 # --------------------------------------------------------------------------
@@ -776,28 +761,77 @@ def _shuffle(sets: np.ndarray, rng) -> np.ndarray:
     return sets.reshape(count * size, -1)[order.ravel()].reshape(sets.shape)
 
 
+def _xor_pixel_sets(base: np.ndarray, n_pixels: int, rng) -> np.ndarray:
+    """``base`` (spp, 2) XOR-ed with a random digital shift per pixel: keeps (0, m, 2)-nets."""
+    shifts = rng.integers(0, 2 ** _FRACTION_BITS, size=(n_pixels, 1, 2), dtype=np.uint64)
+    return _xor_shift(base[None], shifts)
+
+
+def _toroidal_pixel_sets(base: np.ndarray, n_pixels: int, rng) -> np.ndarray:
+    """``base`` (spp, 2) with a random Cranley-Patterson shift per pixel."""
+    return _below_one(np.mod(base[None] + rng.random((n_pixels, 1, 2)), 1.0))
+
+
+def _random_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _random_sets(n_pixels, spp, 2, rng)
+
+
+def _latin_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _latin_sets(n_pixels, spp, 2, rng)
+
+
+def _jittered_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _shuffle(_jittered_sets(n_pixels, spp, 2, rng), rng)  # stratum order -> random order per pixel
+
+
+def _multi_jittered_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _shuffle(_multi_jittered_sets(n_pixels, spp, rng, False), rng)
+
+
+def _sobol_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _xor_pixel_sets(_sobol_points(spp, 2, False, None), n_pixels, rng)
+
+
+def _hammersley_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _xor_pixel_sets(hammersley(spp), n_pixels, rng)
+
+
+def _grid_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _toroidal_pixel_sets(_grid_base(spp, 2), n_pixels, rng)
+
+
+def _halton_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    return _toroidal_pixel_sets(halton(spp), n_pixels, rng)
+
+
+def _blue_noise_pixels(n_pixels: int, spp: int, rng) -> np.ndarray:
+    base = _poisson_disk(spp, rng, 0.7)
+    flip = rng.integers(0, 2, size=(n_pixels, 1, 3)).astype(bool)  # 8 symmetries of the square
+    swapped = np.where(flip[..., 2:], base[None, :, ::-1], base[None])
+    reflected = np.where(flip[..., :2], 1.0 - swapped, swapped)
+    return _below_one(np.mod(reflected + rng.random((n_pixels, 1, 2)), 1.0))
+
+
+def shifted_pixel_sets(sampler: Callable, n_pixels: int, spp: int, rng) -> np.ndarray:
+    """Per-pixel sets of any sampler: one base set ``sampler(spp, rng=rng)``, a random
+    Cranley-Patterson shift per pixel, shape ``(n_pixels, spp, 2)``.
+
+    The default ``pixel_sets`` of a :class:`Sampler`: every pixel's set is
+    uniform (a toroidal shift of anything is), the base set's structure is
+    kept modulo 1, and pixels are independent given the base set.
+    """
+    base = np.asarray(sampler(spp, rng=rng), dtype=np.float64)
+    if base.shape != (spp, 2):
+        raise ValueError(f"a sampler must return shape ({spp}, 2) for n={spp}; got {base.shape}")
+    return _toroidal_pixel_sets(base, n_pixels, rng)
+
+
 def _pixel_pairs(name: str, n_pixels: int, spp: int, rng) -> np.ndarray:
     """One independently randomized 2D pattern per pixel: (n_pixels, spp, 2)."""
-    if name == "random":
-        return _random_sets(n_pixels, spp, 2, rng)
-    if name == "n_rooks":
-        return _latin_sets(n_pixels, spp, 2, rng)
-    if name in ("jittered", "multi_jittered"):  # stratum order -> random order per pixel
-        sets = (_jittered_sets(n_pixels, spp, 2, rng) if name == "jittered"
-                else _multi_jittered_sets(n_pixels, spp, rng, False))
-        return _shuffle(sets, rng)
-    if name in ("sobol", "hammersley"):
-        base = _sobol_points(spp, 2, False, None) if name == "sobol" else hammersley(spp)
-        shifts = rng.integers(0, 2 ** _FRACTION_BITS, size=(n_pixels, 1, 2), dtype=np.uint64)
-        return _xor_shift(base[None], shifts)
-    if name == "blue_noise":
-        base = _poisson_disk(spp, rng, 0.7)
-        flip = rng.integers(0, 2, size=(n_pixels, 1, 3)).astype(bool)  # 8 symmetries of the square
-        swapped = np.where(flip[..., 2:], base[None, :, ::-1], base[None])
-        reflected = np.where(flip[..., :2], 1.0 - swapped, swapped)
-        return _below_one(np.mod(reflected + rng.random((n_pixels, 1, 2)), 1.0))
-    base = _grid_base(spp, 2) if name == "grid" else halton(spp)
-    return _below_one(np.mod(base[None] + rng.random((n_pixels, 1, 2)), 1.0))
+    record = SAMPLERS[name]
+    if record.pixel_sets is None:
+        return shifted_pixel_sets(record.function, n_pixels, spp, rng)
+    return record.pixel_sets(n_pixels, spp, rng)
 
 
 def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.ndarray:
@@ -868,7 +902,7 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     n_pixels = check_count(n_pixels, "n_pixels")
     spp = check_count(spp, "spp")
     d = _check_dim(dim)
-    if name in ("grid", "jittered"):
+    if SAMPLERS[name].square:
         _integer_root(spp, 2, name, "spp")  # clear error before any work
     _check_memory(spp, max(d, 2), "pixel_samples", what="spp", sets=n_pixels)
     pairs = (d + 1) // 2
@@ -882,7 +916,7 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     return out[:, :, :d]
 
 
-def _pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.ndarray:
+def pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.ndarray:
     """:func:`pixel_samples` as columns: ``(dim, n_pixels * spp)``, the same values.
 
     ``out[j, p * spp + i] == pixel_samples(...)[p, i, j]`` for the same
@@ -892,7 +926,8 @@ def _pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -
     written straight into the rows (the same draws in the same order);
     other samplers are transposed from :func:`pixel_samples`.
     """
-    if name != "sobol":
+    name = check_choice(name, "name", SAMPLERS)
+    if name != "sobol" or SAMPLERS[name].pixel_sets is not _sobol_pixels:
         return np.ascontiguousarray(pixel_samples(name, n_pixels, spp, dim=dim, rng=rng).reshape(-1, dim).T)
     n_pixels = check_count(n_pixels, "n_pixels")
     spp = check_count(spp, "spp")
@@ -918,3 +953,139 @@ def _pixel_sample_columns(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -
             row[...] = col
             row *= scale
     return out[:d]
+
+
+# --------------------------------------------------------------------------
+# The registry: one record per sampler
+# --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Sampler:
+    """Everything mcvar needs to know about one sampler; called like its function.
+
+    Attributes
+    ----------
+    name : str
+        The key in :data:`SAMPLERS` (``--sampler NAME``, ``render(sampler=NAME)``).
+    function : callable
+        ``function(n, *, rng=None, **options) -> (n, 2)`` in [0, 1).
+    star_slope : float
+        Expected log-log slope of the star discrepancy against n (the
+        samplers report draws it beside the fitted one).
+    star_slope_why : str
+        Where that slope comes from (one line, shown in ``slopes.csv``).
+    square : bool
+        True: n must be a perfect square (``grid``, ``jittered``); callers
+        that choose n (the samplers report, the renderer's batch sizes) pick
+        squares.
+    deterministic : bool
+        True: the default options ignore ``rng`` (the same points each call).
+    iid : bool
+        True: the points are independent, so one set's iid standard error is
+        right (the estimators need no replicates); False for stratified and
+        QMC points, whose samples are dependent.
+    words_per_coord : int
+        Peak working memory in 8-byte words per output coordinate (checked
+        against :data:`MAX_BYTES` before allocating).
+    pixel_sets : callable or None
+        ``pixel_sets(n_pixels, spp, rng) -> (n_pixels, spp, 2)``: one
+        independently randomized pattern per pixel, vectorised over pixels
+        (:func:`pixel_samples`). None: :func:`shifted_pixel_sets` (one base
+        set, a Cranley-Patterson shift per pixel).
+
+    Examples
+    --------
+    >>> SAMPLERS["jittered"].square, SAMPLERS["random"].iid
+    (True, True)
+    >>> SAMPLERS["sobol"](4, rng=1).shape
+    (4, 2)
+    """
+
+    name: str
+    function: Callable
+    star_slope: float
+    star_slope_why: str = ""
+    square: bool = False
+    deterministic: bool = False
+    iid: bool = False
+    words_per_coord: int = 4
+    pixel_sets: Callable | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.isidentifier():
+            raise ValueError(f"Sampler.name must be an identifier-like string; got {self.name!r}")
+        for key in ("function", "pixel_sets"):
+            value = getattr(self, key)
+            if not callable(value) and not (key == "pixel_sets" and value is None):
+                raise TypeError(f"Sampler.{key} must be callable; got {type(value).__name__}")
+        slope = self.star_slope
+        if isinstance(slope, bool) or not isinstance(slope, (int, float)) or not -2.0 <= slope < 0.0:
+            raise ValueError(f"Sampler.star_slope must be a number in [-2, 0); got {slope!r}")
+        words = self.words_per_coord
+        if isinstance(words, bool) or not isinstance(words, int) or words < 1:
+            raise ValueError(f"Sampler.words_per_coord must be an int >= 1; got {words!r}")
+
+    def __call__(self, n, **options):
+        return self.function(n, **options)
+
+
+#: The samplers by name: :class:`Sampler` records (the tracer, the estimators and
+#: the reports look them up here). Memory: tracemalloc peaks at n = 2^16 (blue
+#: noise 2^14), rounded up with a margin (measured: random 1.0, grid 2.1,
+#: jittered 3.1, n_rooks 3.0, multi_jittered 1.6, hammersley/halton 3.6, sobol
+#: 9.1 (scipy), blue_noise 24). Star-discrepancy slopes: for the nets the log
+#: factors make the slope fitted on n = 64 ... 4096 read about -1 + a / ln n
+#: (-0.85 for log n / n, -0.7 for log^2 n / n).
+SAMPLERS: dict[str, Sampler] = {}
+
+
+def register_sampler(sampler: Sampler) -> Sampler:
+    """Add ``sampler`` to :data:`SAMPLERS` (a duplicate name is a ``ValueError``); return it.
+
+    See docs/samplers.md, 'Adding a sampler'.
+    """
+    if not isinstance(sampler, Sampler):
+        raise TypeError(f"register_sampler takes a Sampler; got {type(sampler).__name__}")
+    if sampler.name in SAMPLERS:
+        raise ValueError(f"a sampler named {sampler.name!r} is already registered")
+    SAMPLERS[sampler.name] = sampler
+    return sampler
+
+
+for _record in (
+    Sampler("random", random, -0.5, "E D* ~ c n^-1/2 (sqrt(n) D* has a limit law)", iid=True,
+            words_per_coord=2, pixel_sets=_random_pixels),
+    Sampler("grid", grid, -0.5, "a row of sqrt(n) points enters a box at once", square=True,
+            deterministic=True, words_per_coord=3, pixel_sets=_grid_pixels),
+    Sampler("jittered", jittered, -0.75, "E D* <= C n^-3/4 sqrt(log n) (Pausinger & Steinerberger 2016)",
+            square=True, pixel_sets=_jittered_pixels),
+    Sampler("n_rooks", n_rooks, -0.5, "like random for 2D boxes (Doerr, Doerr & Gnewuch 2018)",
+            pixel_sets=_latin_pixels),
+    Sampler("multi_jittered", multi_jittered, -0.75, "jittered, so at least n^-3/4", words_per_coord=3,
+            pixel_sets=_multi_jittered_pixels),
+    Sampler("hammersley", hammersley, -1.0, "O(log n / n) for n = 2^m: a (0, m, 2)-net", deterministic=True,
+            pixel_sets=_hammersley_pixels),
+    Sampler("halton", halton, -1.0, "O(log^2 n / n)", deterministic=True, pixel_sets=_halton_pixels),
+    Sampler("sobol", sobol, -1.0, "O(log n / n): (0, m, 2)-nets", words_per_coord=10, pixel_sets=_sobol_pixels),
+    Sampler("blue_noise", blue_noise, -0.5, "dart throwing is not hyperuniform: P(k -> 0) ~ 0.1 > 0, so box "
+            "counts fluctuate like random ones, ~0.3x smaller; -0.5 asymptotically", words_per_coord=32,
+            pixel_sets=_blue_noise_pixels),
+):
+    register_sampler(_record)
+del _record
+
+#: The built-in samplers whose default options ignore ``rng``: the same points every call
+#: (``SAMPLERS[name].deterministic`` for any registered one). Independent, unbiased
+#: replicates of them need a randomization such as :func:`digital_shift` (which keeps
+#: (0, m, 2)-nets nets).
+DETERMINISTIC = frozenset(name for name, rec in SAMPLERS.items() if rec.deterministic)
+
+
+def sampler_record(name: str) -> Sampler:
+    """The :class:`Sampler` record called ``name``; ValueError listing the valid names otherwise."""
+    return SAMPLERS[check_choice(name, "sampler name", SAMPLERS)]
+
+
+def get_sampler(name: str):
+    """The sampler function called ``name``; ValueError listing the valid names otherwise."""
+    return sampler_record(name).function

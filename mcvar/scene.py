@@ -47,7 +47,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
-from .bsdf import Conductor, Glass, Lambertian, Mirror
+from .bsdf import BSDF, Conductor, Glass, Lambertian, Mirror
+from .envmap import EnvironmentMap
 from .geometry import normalize
 from .scenefile import read_scene_file
 
@@ -396,6 +397,50 @@ def _film_res(res):
     return int(width), int(height)
 
 
+#: Largest coordinate magnitude of scene geometry (vertices, sphere centres
+#: and radii, light corners and edges, point lights): the tracer's float32
+#: geometry squares coordinate differences, which stay finite in float32 (max
+#: 3.4e38) below about 1.8e19; 1e18 leaves room for sums of three squares.
+MAX_COORDINATE = 1e18
+
+
+def _scene_array(value, name: str, row: tuple, dtype=np.float64, *, nonnegative: bool = False) -> np.ndarray:
+    """A Scene field as a read-only array of shape ``(n,) + row``: an empty
+    input is ``(0,) + row``; another shape, NaN/Inf, (for floats) a negative
+    entry where ``nonnegative``, or a value that is not a whole number in an
+    integer table is a ValueError naming the field."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be an array of shape (n, {', '.join(map(str, row))}); got a string")
+    if np.dtype(dtype) == np.float64:
+        arr = as_array(value, name, nonnegative=nonnegative)
+    else:
+        try:
+            raw = np.asarray(value)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{name} must be an array; got {type(value).__name__}") from exc
+        if raw.size and raw.dtype.kind not in ("b" if dtype is bool else "biu"):
+            if dtype is bool or raw.dtype.kind != "f" or not np.all(np.isfinite(raw)) \
+                    or not np.all(raw == np.round(raw)):
+                raise ValueError(f"{name} must hold {'booleans' if dtype is bool else 'integers'}; got dtype "
+                                 f"{raw.dtype}")
+        arr = raw.astype(dtype)
+    if arr.size == 0:
+        arr = arr.reshape((0,) + row)
+    if arr.shape[1:] != row or arr.ndim != 1 + len(row):
+        want = "(n" + "".join(f", {r}" for r in row) + ")" if row else "(n,)"
+        raise ValueError(f"{name} must have shape {want}; got shape {arr.shape}")
+    arr = np.array(arr, dtype=dtype)
+    arr.flags.writeable = False
+    return arr
+
+
+def _check_coordinates(arr: np.ndarray, name: str) -> None:
+    """Geometry within +-:data:`MAX_COORDINATE` (finite is checked already)."""
+    if arr.size and not np.all(np.abs(arr) <= MAX_COORDINATE):
+        raise ValueError(f"{name} must have coordinates within +-{MAX_COORDINATE:g} (the tracer's float32 "
+                         f"geometry squares them); got {float(np.abs(arr).max())!r}")
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
     """Immutable scene data: primitives, materials, emitters and camera.
@@ -491,46 +536,70 @@ class Scene:
     sphere_light: np.ndarray | None = None
 
     def __post_init__(self):
-        tri = _frozen(self.triangles).reshape(-1, 3, 3)
-        sc = _frozen(self.sphere_centers).reshape(-1, 3)
-        sr = _frozen(self.sphere_radii).reshape(-1)
+        if not isinstance(self.name, str):
+            raise TypeError(f"Scene.name must be a string; got {type(self.name).__name__}")
+        tri = _scene_array(self.triangles, "triangles", (3, 3))
+        sc = _scene_array(self.sphere_centers, "sphere_centers", (3,))
+        sr = _scene_array(self.sphere_radii, "sphere_radii", ())
+        _check_coordinates(tri, "triangles")
+        _check_coordinates(sc, "sphere_centers")
         n_prim = tri.shape[0] + sc.shape[0]
-        if sr.shape[0] != sc.shape[0] or not np.all(sr > 0):
-            raise ValueError("sphere_radii must be > 0, one per sphere center")
+        if sr.shape[0] != sc.shape[0]:
+            raise ValueError(f"sphere_radii must have one value per row of sphere_centers ({sc.shape[0]}); "
+                             f"got {sr.shape[0]}")
+        if not np.all((sr > 0) & (sr <= MAX_COORDINATE)):
+            raise ValueError(f"sphere_radii must be finite and > 0 (at most {MAX_COORDINATE:g}); got "
+                             f"{sr[~((sr > 0) & (sr <= MAX_COORDINATE))][0]}")
         tables = {
-            "prim_material": _frozen(self.prim_material, np.int64).reshape(-1),
-            "prim_emission": _frozen(self.prim_emission).reshape(-1, 3),
-            "prim_two_sided_emission": _frozen(self.prim_two_sided_emission, bool).reshape(-1),
-            "prim_light": _frozen(self.prim_light, np.int64).reshape(-1),
-            "prim_group": _frozen(self.prim_group, np.int64).reshape(-1),
+            "prim_material": _scene_array(self.prim_material, "prim_material", (), np.int64),
+            "prim_emission": _scene_array(self.prim_emission, "prim_emission", (3,), nonnegative=True),
+            "prim_two_sided_emission": _scene_array(self.prim_two_sided_emission, "prim_two_sided_emission",
+                                                    (), bool),
+            "prim_light": _scene_array(self.prim_light, "prim_light", (), np.int64),
+            "prim_group": _scene_array(self.prim_group, "prim_group", (), np.int64),
         }
         for key, arr in tables.items():
             if arr.shape[0] != n_prim:
-                raise ValueError(f"{key} must have one row per primitive ({n_prim}); got {arr.shape[0]}")
-        if not np.all(tables["prim_emission"] >= 0):
-            raise ValueError("prim_emission must be non-negative")
+                raise ValueError(f"{key} must have one row per primitive ({n_prim}: {tri.shape[0]} triangles, "
+                                 f"{sc.shape[0]} spheres); got {arr.shape[0]}")
+        materials = self.materials
+        if isinstance(materials, (str, bytes)) or not hasattr(materials, "__iter__"):
+            raise TypeError(f"materials must be a tuple of mcvar.bsdf objects; got {type(materials).__name__}")
+        materials = tuple(materials)
+        for i, m in enumerate(materials):
+            if not isinstance(m, BSDF):
+                raise TypeError(f"materials[{i}] must be a mcvar.bsdf object (Lambertian, Mirror, Glass, ...); "
+                                f"got {type(m).__name__} {m!r}")
+        names = self.material_names
+        names = (names,) if isinstance(names, str) else tuple(names)
+        if len(names) != len(materials) or not all(isinstance(n, str) for n in names):
+            raise ValueError(f"material_names must hold one string per entry of materials ({len(materials)}); "
+                             f"got {names!r}")
         mat = tables["prim_material"]
-        if n_prim and not (mat.min() >= 0 and mat.max() < len(self.materials)):
-            raise ValueError("prim_material must index into materials")
-        lights = {k: _frozen(getattr(self, k)).reshape(-1, 3)
+        if n_prim and not (mat.min() >= 0 and mat.max() < len(materials)):
+            raise ValueError(f"prim_material must index into materials (0 .. {len(materials) - 1}); got values "
+                             f"in [{mat.min()}, {mat.max()}]")
+        lights = {k: _scene_array(getattr(self, k), k, (3,), nonnegative=(k == "light_radiance"))
                   for k in ("light_origin", "light_edge1", "light_edge2", "light_radiance")}
         n_light = lights["light_origin"].shape[0]
-        if any(v.shape[0] != n_light for v in lights.values()):
-            raise ValueError("light_origin, light_edge1, light_edge2, light_radiance must have one row per light")
-        if not np.all(lights["light_radiance"] >= 0):
-            raise ValueError("light_radiance must be non-negative")
-        if not np.all(np.linalg.norm(np.cross(lights["light_edge1"], lights["light_edge2"]), axis=1) > 0):
-            raise ValueError("light edges must span a parallelogram of positive area")
-        points = {k: _frozen(np.zeros((0, 3)) if getattr(self, k) is None else getattr(self, k)).reshape(-1, 3)
+        for k, v in lights.items():
+            if v.shape[0] != n_light:
+                raise ValueError(f"{k} must have one row per light ({n_light}, as light_origin); got {v.shape[0]}")
+            if k != "light_radiance":
+                _check_coordinates(v, k)
+        area = np.linalg.norm(np.cross(lights["light_edge1"], lights["light_edge2"]), axis=1)
+        if not np.all((area > 0) & np.isfinite(area)):
+            bad = int(np.argmax(~((area > 0) & np.isfinite(area))))
+            raise ValueError(f"light_edge1 and light_edge2 must span a parallelogram of positive area; light {bad} "
+                             f"has area {area[bad]}")
+        points = {k: _scene_array(np.zeros((0, 3)) if getattr(self, k) is None else getattr(self, k), k, (3,),
+                                  nonnegative=(k == "point_light_intensity"))
                   for k in ("point_light_position", "point_light_intensity")}
         if points["point_light_position"].shape != points["point_light_intensity"].shape:
             raise ValueError("point_light_position and point_light_intensity must have one row (3 values) "
                              f"per point light; got {points['point_light_position'].shape} and "
                              f"{points['point_light_intensity'].shape}")
-        if not (np.all(np.isfinite(points["point_light_position"]))
-                and np.all(np.isfinite(points["point_light_intensity"]))
-                and np.all(points["point_light_intensity"] >= 0)):
-            raise ValueError("point lights need finite positions and finite non-negative intensities")
+        _check_coordinates(points["point_light_position"], "point_light_position")
         lights.update(points)
         pl = tables["prim_light"]
         sph = _frozen(np.zeros(0) if self.sphere_light is None else self.sphere_light).reshape(-1)
@@ -541,7 +610,9 @@ class Scene:
         if sph.size and not (sph.min() >= 0 and sph.max() < sc.shape[0] and np.unique(sph).size == sph.size):
             raise ValueError(f"sphere_light must hold distinct sphere indices in [0, {sc.shape[0]}); got {sph}")
         if n_prim and not (pl.min() >= -1 and pl.max() < n_light + sph.size):
-            raise ValueError("prim_light must be -1 or index a light")
+            raise ValueError(f"prim_light must be -1 or index a light (0 .. {n_light + sph.size - 1}: "
+                             f"{n_light} parallelogram(s), then {sph.size} sphere light(s)); got values in "
+                             f"[{pl.min()}, {pl.max()}]")
         if np.any(pl[:n_tri] >= n_light):
             raise ValueError("prim_light of a triangle must be -1 or index a parallelogram light")
         expect = np.full(sc.shape[0], -1)
@@ -553,13 +624,20 @@ class Scene:
         if sph.size and not np.all(tables["prim_emission"][n_tri + sph] >= 0):
             raise ValueError("sphere lights need non-negative prim_emission")
         lights["sphere_light"] = sph
+        if not isinstance(self.camera, Camera):
+            raise TypeError(f"camera must be a mcvar.scene.Camera; got {type(self.camera).__name__}")
+        if self.environment is not None and not isinstance(self.environment, EnvironmentMap):
+            raise TypeError(f"environment must be None or a mcvar.envmap.EnvironmentMap; got "
+                            f"{type(self.environment).__name__}")
+        if not isinstance(self.description, str):
+            raise TypeError(f"description must be a string; got {type(self.description).__name__}")
         object.__setattr__(self, "triangles", tri)
         object.__setattr__(self, "sphere_centers", sc)
         object.__setattr__(self, "sphere_radii", sr)
         for key, arr in {**tables, **lights}.items():
             object.__setattr__(self, key, arr)
-        object.__setattr__(self, "materials", tuple(self.materials))
-        object.__setattr__(self, "material_names", tuple(self.material_names))
+        object.__setattr__(self, "materials", materials)
+        object.__setattr__(self, "material_names", names)
         check_positive(self.ray_epsilon, "ray_epsilon")
         if self.checker_period is not None:
             check_positive(self.checker_period, "checker_period")
@@ -984,12 +1062,14 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     float32). ``ray_epsilon`` and the description travel in a ``<!-- mcvar
     ... -->`` comment that Mitsuba ignores. ``load_scene(save_scene(s))``
     renders the same image as ``s`` with the same seed (tests/test_scenefile.py).
-    Needs Mitsuba 3 installed (``mcvar[mitsuba]``): the exporter builds its
-    transforms with it.
+    Needs no Mitsuba: the camera and the environment's rotation are written as
+    XML records, an environment image through :func:`mcvar.images.write_image`
+    (EXR needs the ``exr`` extra).
     """
     # save_scene is the one function of this module above layer 4: it writes through the
     # exporter of mcvar.interop (layer 5), imported here, when called (tests/test_layering.py)
-    from .interop.mitsuba import to_mitsuba
+    from .images import write_image
+    from .interop.mitsuba import MitsubaTransforms, scene_dict
     from .scenefile import LookAt, Rotate, write_xml
 
     if not isinstance(scene, Scene):
@@ -1002,19 +1082,13 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     spp = defaults.get("spp", 16) if spp is None else spp
     max_depth = defaults.get("max_depth") if max_depth is None else max_depth
     folder = path.parent / path.stem
-    d = to_mitsuba(scene, res=res, spp=spp, max_depth=max_depth, folder=folder)
-    cam = scene.camera
-    d["sensor"]["to_world"] = LookAt(tuple(cam.position), tuple(cam.look_at), tuple(cam.up))
+    records = MitsubaTransforms(look_at=lambda o, t, u: LookAt(tuple(o), tuple(t), tuple(u)),
+                                rotate_y=lambda deg: Rotate((0.0, 1.0, 0.0), float(deg)),
+                                write_exr=lambda p, image: write_image(p, image))
+    d = scene_dict(scene, res=res, spp=spp, max_depth=max_depth, folder=folder, transforms=records)
     if "rr_depth" in defaults and "max_depth" in d["integrator"]:
         d["integrator"]["rr_depth"] = int(defaults["rr_depth"])
     env = d.get("environment")
-    if env is not None and "to_world" in env:
-        m = np.asarray(env["to_world"].matrix, dtype=np.float64)
-        angle = math.degrees(math.atan2(m[0, 2], m[0, 0]))
-        if not np.allclose(m[:3, :3], _y_rotation(angle), atol=1e-6):
-            raise ValueError("the exporter's environment transform is not a rotation about +y")
-        # the exporter builds it in float32: its angle to 1e-4 degrees (whole degrees in practice)
-        env["to_world"] = Rotate((0.0, 1.0, 0.0), float(round(angle, 4)))
     for value in d.values():
         if isinstance(value, dict) and isinstance(value.get("filename"), str):
             value["filename"] = os.path.relpath(value["filename"], path.parent).replace(os.sep, "/")
@@ -1027,12 +1101,6 @@ def save_scene(scene: Scene, path, *, res=None, spp: int | None = None, max_dept
     path.write_text(write_xml(d, comments=[f"{scene.name}: written by mcvar.scene.save_scene", meta]),
                     encoding="utf-8")
     return path
-
-
-def _y_rotation(angle_deg):
-    t = math.radians(angle_deg)
-    c, s = math.cos(t), math.sin(t)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 # --------------------------------------------------------------------------

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validation import as_array, check_count, check_choice
+from ._validation import as_array, check_bool, check_count, check_choice
 
 __all__ = ["Hit", "Tracer"]
 
@@ -108,7 +108,7 @@ class Tracer:
         self.dtype = np.dtype(dtype)
         self.chunk = check_count(chunk, "chunk")
         self._box_slice = 4 * self.chunk        # rays per call of the slab test
-        self.cull = bool(cull)
+        self.cull = check_bool(cull, "cull")
         self.epsilon = float(scene.ray_epsilon)
         tri = scene.triangles
         n_tri = tri.shape[0]

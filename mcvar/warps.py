@@ -1255,16 +1255,16 @@ def _rectangle_soa_local(p, origin, x, y, z):
     return x0, y0, z0
 
 
-def _spherical_rectangle_soa(u0, u1, p, origin, x, y, z, l1, l2):
+def _spherical_rectangle_soa(u, p, origin, x, y, z, l1, l2):
     """:func:`square_to_spherical_rectangle` for structure-of-arrays shading points.
 
-    ``p`` (3, m), ``u0, u1`` (m,), the rectangle ``origin`` (3,) with the
+    ``p`` (3, m), ``u`` (2, m), the rectangle ``origin`` (3,) with the
     frame of :func:`_rectangle_soa_frame`. Returns ``(w, dist, S)``: unit
     directions (3, m) from ``p`` to the sampled points, their distances and
     the solid angle ``S`` of the rectangle seen from ``p`` (the density is
     ``1 / S``; 0 where the rectangle is seen edge-on)."""
     x0, y0, z0 = _rectangle_soa_local(p, origin, x, y, z)
-    xu, yv, s = _spherical_rectangle_unchecked(u0, u1, x0, x0 + l1, y0, y0 + l2, -np.abs(z0))
+    xu, yv, s = _spherical_rectangle_unchecked(u[0], u[1], x0, x0 + l1, y0, y0 + l2, -np.abs(z0))
     w = x * xu
     w += y * yv
     w += z * z0

@@ -58,3 +58,24 @@ def test_converge_measures_a_user_renderer_by_module_function(tmp_path, monkeypa
     assert "module:function" in capsys.readouterr().err
     assert main(["converge", "cornell", "--target", "my_toy_renderer:evaluate", "--out", str(out)]) == 2
     assert "not both" in capsys.readouterr().err
+
+
+def test_render_method_flag_its_alias_and_the_registry_in_the_help(tmp_path, capsys):
+    """``--method`` names the method (``--integrator`` is an alias; both is an
+    error), the help lists every registered method, and an image too big for
+    memory is refused before anything is allocated."""
+    import numpy as np
+
+    from mcvar.integrators import METHODS
+
+    base = ["render", "cornell", "--res", "4", "--spp", "2", "--quiet", "--uniform"]
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    assert main(base + ["--method", "direct", "--out", str(a)]) == 0
+    assert main(base + ["--integrator", "direct", "--out", str(b)]) == 0
+    assert np.array_equal(np.load(a), np.load(b))
+    assert main(base + ["--method", "direct", "--integrator", "path", "--out", str(a)]) == 2
+    assert "not both" in capsys.readouterr().err
+    assert main(["render", "cornell", "--res", "1000000", "--quiet", "--out", str(a)]) == 2
+    assert "max_memory" in capsys.readouterr().err
+    help_text = build_parser()._subparsers._group_actions[0].choices["render"].format_help()
+    assert all(name in help_text.replace("\n", " ").replace("  ", " ") for name in METHODS)

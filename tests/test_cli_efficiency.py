@@ -33,9 +33,9 @@ def test_demo_adds_the_best_configuration_image(tmp_path, monkeypatch, capsys):
     """``mcvar demo`` writes cornell-best.png (adaptive Sobol) after its report;
     ``--no-best`` is the previous behaviour (the report alone). The report
     itself is replaced by a stub here: it has its own tests."""
-    import mcvar.report
+    import mcvar.demo
 
-    monkeypatch.setattr(mcvar.report, "demo", lambda out, progress=True: {})
+    monkeypatch.setattr(mcvar.demo, "demo", lambda out, progress=True: {})
     assert main(["demo", "--out", str(tmp_path / "a"), "--quiet", "--no-best"]) == 0
     assert not (tmp_path / "a" / "cornell-best.png").exists()
     assert main(["demo", "--out", str(tmp_path / "b"), "--quiet"]) == 0

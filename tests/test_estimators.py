@@ -602,3 +602,24 @@ class TestStudies:
         s = replicate_study(lambda n, rng: rng.random(), 1, replicates=4, rng=2024)
         expected = [np.random.default_rng(c).random() for c in np.random.SeedSequence(2024).spawn(4)]
         assert s.values.tolist() == expected
+
+
+def test_estimators_take_a_settings_record_or_its_keywords():
+    """EstimateSettings carries n, sampler, rng, replicates and the tolerances through every
+    estimator; the documented keywords are its fields and give the same estimate."""
+    from mcvar.estimators import EstimateSettings, estimate, hemisphere_estimate, one_sample_mis
+
+    settings = EstimateSettings(n=4096, sampler="sobol", rng=7)
+    a = estimate(lambda x: x[:, 0] * x[:, 1], settings=settings)
+    b = estimate(lambda x: x[:, 0] * x[:, 1], n=4096, sampler="sobol", rng=7)
+    assert a.mean == b.mean and a.stderr == b.stderr and a.replicates == 16
+    c = hemisphere_estimate(lambda w: np.ones(len(w)), settings=settings, method="uniform")
+    assert abs(c.mean - np.pi) < 5 * c.stderr
+    strategies = [(warps.square_to_uniform_hemisphere, warps.square_to_uniform_hemisphere_pdf),
+                  (warps.square_to_cosine_hemisphere, warps.square_to_cosine_hemisphere_pdf)]
+    d = one_sample_mis(lambda w: np.maximum(w[:, 1], 0.0), strategies, settings=settings, rng=8)
+    assert abs(d.mean - np.pi) < 5 * d.stderr
+    with pytest.raises(TypeError, match="needs n"):
+        estimate(lambda x: x[:, 0])
+    with pytest.raises(TypeError, match="unexpected keyword argument.*'samples'"):
+        estimate(lambda x: x[:, 0], samples=10)

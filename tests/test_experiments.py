@@ -84,7 +84,7 @@ def test_run_seed_depends_only_on_configuration():
 def fake_result():
     target = fake_target(methods=("unbiased", "biased", "vanishing", "single"), samplers=("random", "half"),
                          spp=(1, 4, 16, 64, 256))
-    return ex.sweep(target, replicates=16, seed=20240611, workers=1, progress=False)
+    return ex.sweep(target, replicates=16, rng=20240611, workers=1, progress=False)
 
 
 def test_variance_matches_construction(fake_result):
@@ -159,7 +159,7 @@ def _numbers(result):
 
 def test_serial_process_and_dask_executors_agree(tmp_path):
     target = fake_target(spp=(1, 4, 16))
-    kw = dict(replicates=4, seed=99991, progress=False, methods=("unbiased", "biased"))
+    kw = dict(replicates=4, rng=99991, progress=False, methods=("unbiased", "biased"))
     serial = ex.sweep(target, workers=1, **kw)
     with ProcessPoolExecutor(max_workers=2) as pool:
         process = ex.sweep(target, executor=pool, **kw)
@@ -174,7 +174,7 @@ def test_serial_process_and_dask_executors_agree(tmp_path):
 
 
 def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
-    kw = dict(replicates=3, seed=4242, progress=False, cache_dir=tmp_path, workers=1)
+    kw = dict(replicates=3, rng=4242, progress=False, cache_dir=tmp_path, workers=1)
     total = 2 * 3 * 3
     first = Counting(interrupt_at=7)
     with pytest.raises(KeyboardInterrupt):
@@ -201,16 +201,16 @@ def test_reference_is_cached_and_its_variance_measured(tmp_path):
         return _fake_reference(rng)
 
     target = fake_target(reference_task=task)
-    ref = ex.compute_reference(target, seed=5, cache_dir=tmp_path)
+    ref = ex.compute_reference(target, rng=5, cache_dir=tmp_path)
     assert len(calls) == 8 and ref.chunks == 8 and ref.source.startswith("rendered")
     # variance of the mean of 8 chunks of 4096 spp each: sigma^2 / (8 * 4096);
     # pixel-average of chi^2_7 / 7 estimates: relative sd sqrt(2 / (48 * 7)).
     expected = SIGMA ** 2 / (8 * 4096)
     assert abs(ref.variance.mean() / expected - 1) < Z * np.sqrt(2 / (TRUTH.size * 7))
-    again = ex.compute_reference(target, seed=5, cache_dir=tmp_path)
+    again = ex.compute_reference(target, rng=5, cache_dir=tmp_path)
     assert len(calls) == 8 and again.source.startswith("cache")
     np.testing.assert_array_equal(again.value, ref.value)
-    ex.compute_reference(target, seed=6, cache_dir=tmp_path)  # another seed: another key
+    ex.compute_reference(target, rng=6, cache_dir=tmp_path)  # another seed: another key
     assert len(calls) == 16
 
 
@@ -220,7 +220,7 @@ def test_reference_from_user_file(tmp_path):
     np.testing.assert_array_equal(ref.value, TRUTH)
     assert np.all(ref.variance == 0) and ref.source.startswith("file")
     result = ex.sweep(fake_target(spp=(1, 4, 16)), reference=tmp_path / "ref.npy", replicates=4,
-                      seed=11, workers=1, progress=False)
+                      rng=11, workers=1, progress=False)
     assert result.verdicts["unbiased"].unbiased
     with pytest.raises(FileNotFoundError, match="does not exist"):
         ex.compute_reference(fake_target(), path=tmp_path / "missing.npy")
@@ -265,7 +265,7 @@ def test_fixed_depth_path_tracing_is_biased_and_russian_roulette_is_not():
     pytest.importorskip("mcvar.integrators")
     target = ex.scene_target("cornell", res=16, reference_spp=256, reference_chunks=8)
     result = ex.sweep(target, methods=("path", "path:2"), samplers=("random",), spp=(4, 32, 256),
-                      replicates=8, seed=271828, workers=1, progress=False)
+                      replicates=8, rng=271828, workers=1, progress=False)
     fixed = [m for m in result.metrics if m.method == "path:2"]
     rr = [m for m in result.metrics if m.method == "path"]
     assert fixed[-1].bias_z < -Z  # light is missing: the bias is negative
@@ -280,7 +280,7 @@ def test_plain_random_monte_carlo_variance_falls_as_one_over_n():
     """Checkerboard, uniform sampling: Var = 4 / N ('Variance Reduction
     Example': integrand variance 1/4, contribution 4 f, so 16 / 4 per sample)."""
     result = ex.sweep("checkerboard", methods=("uniform",), samplers=("random",), replicates=32,
-                      seed=1618033, workers=1, progress=False)
+                      rng=1618033, workers=1, progress=False)
     fit = result.fits[("uniform", "random")].variance
     lo, hi = fit.slope_ci(1 - 1e-3)  # Student t, n - 2 dof, from the fit's residuals
     assert lo <= -1 <= hi
@@ -301,7 +301,7 @@ def test_stratified_and_qmc_beat_random_on_a_smooth_integrand():
     """exp(xy) on [0,1]^2: jittered sampling's variance falls like N^-2 in 2D
     (Mitchell 1996), scrambled Sobol's faster still; random stays at N^-1."""
     result = ex.sweep("exp_xy", samplers=("random", "jittered", "sobol"), spp=(4, 16, 64, 256, 1024, 4096),
-                      replicates=16, seed=577215, workers=1, progress=False)
+                      replicates=16, rng=577215, workers=1, progress=False)
     fit = {s: result.fits[("uniform", s)].variance for s in result.samplers}
     # one-sided test that the slope is steeper than random's: the difference
     # over its standard error against Student t with 2 (n - 2) dof at 1 - 1e-3
@@ -321,7 +321,7 @@ def test_the_lectures_estimators_get_the_lectures_verdicts():
     """'Bias & Consistency', 'Consistent Or Unbiased?', 'Biased vs. Unbiased
     Example': plain MC is both, the m x m grid consistent only, one sample
     times the area unbiased only, not dividing by the pdf neither."""
-    result = ex.sweep("lecture", replicates=16, seed=141421, workers=1, progress=False)
+    result = ex.sweep("lecture", replicates=16, rng=141421, workers=1, progress=False)
     labels = {m: v.label for m, v in result.verdicts.items()}
     assert labels == {"uniform": "both", "grid": "consistent", "single": "unbiased", "undivided": "neither"}
     grid = [m for m in result.metrics if m.method == "grid"]
@@ -347,7 +347,7 @@ def test_zero_variance_estimators_are_judged_by_rounding_not_by_z_infinity():
     target = ex.Target(name="zero-variance", evaluate=_zero_variance_evaluate, key="zero-variance-v1",
                        methods=("exact", "offset"), samplers=("random",), spp=(1, 3, 7, 49),
                        exact=np.array([2.0 * np.pi / 3.0]))
-    result = ex.sweep(target, replicates=4, seed=3, executor=ex.SerialExecutor(), progress=False)
+    result = ex.sweep(target, replicates=4, rng=3, executor=ex.SerialExecutor(), progress=False)
     assert result.verdicts["exact"].label == "both"  # exact at every level, up to rounding
     assert result.verdicts["offset"].label == "neither"  # biased, and the bias never falls
 
@@ -358,7 +358,7 @@ def test_zero_variance_evidence_states_the_exact_bias_not_a_rounding_t(tmp_path)
     and the report say 'bias = X exactly', not |t| = bias / rounding floor (~1e13)."""
     from mcvar.report import write_report
 
-    grid = ex.sweep("lecture", methods=["grid"], replicates=4, seed=5, workers=1, progress=False)
+    grid = ex.sweep("lecture", methods=["grid"], replicates=4, rng=5, workers=1, progress=False)
     assert all(m.deterministic and m.bias_detected for m in grid.metrics)
     assert abs(grid.metrics[0].bias_z) > 1e12  # the number the text must not show
     ev = grid.verdicts["grid"].evidence
@@ -373,11 +373,11 @@ def test_zero_variance_evidence_states_the_exact_bias_not_a_rounding_t(tmp_path)
     target = ex.Target(name="zero-variance", evaluate=_zero_variance_evaluate, key="zero-variance-v1",
                        methods=("exact", "offset"), samplers=("random",), spp=(1, 3, 7, 49),
                        exact=np.array([2.0 * np.pi / 3.0]))
-    result = ex.sweep(target, replicates=4, seed=3, executor=ex.SerialExecutor(), progress=False)
+    result = ex.sweep(target, replicates=4, rng=3, executor=ex.SerialExecutor(), progress=False)
     assert "bias = 0 (to rounding) (random, 1 spp)" in result.verdicts["exact"].evidence
     assert "nonzero beyond rounding in 4: bias = +1e-09 (random, 1 spp)" in result.verdicts["offset"].evidence
     # an estimator that scatters keeps its t test
-    noisy = ex.sweep("lecture", methods=["uniform"], spp=[1, 9, 49], replicates=4, seed=5, workers=1,
+    noisy = ex.sweep("lecture", methods=["uniform"], spp=[1, 9, 49], replicates=4, rng=5, workers=1,
                      progress=False)
     assert not any(m.deterministic for m in noisy.metrics)
     assert "largest |t| = " in noisy.verdicts["uniform"].evidence
@@ -396,7 +396,7 @@ def test_consistency_of_a_scalar_estimator_is_detected_from_few_replicates():
     target = ex.Target(name="scalar", evaluate=_scalar_evaluate, key="scalar-v1",
                        methods=("mc", "single"), samplers=("random",),
                        spp=tuple(4 ** k for k in range(7)), exact=np.array([1.0]))
-    result = ex.sweep(target, replicates=8, seed=11, executor=ex.SerialExecutor(), progress=False)
+    result = ex.sweep(target, replicates=8, rng=11, executor=ex.SerialExecutor(), progress=False)
     assert result.verdicts["mc"].label == "both"
     assert result.verdicts["single"].label == "unbiased"
 
@@ -405,6 +405,31 @@ def test_integrand_sweeps_randomize_deterministic_samplers():
     # Hammersley ignores rng: without a per-replicate shift every replicate
     # would be the same number and the variance exactly 0.
     result = ex.sweep(ex.integrand_target("hemisphere"), methods=["uniform"], samplers=["hammersley"],
-                      spp=[16, 64, 256], replicates=6, seed=5, executor=ex.SerialExecutor(), progress=False)
+                      spp=[16, 64, 256], replicates=6, rng=5, executor=ex.SerialExecutor(), progress=False)
     assert all(m.variance > 0 for m in result.metrics)
     assert result.verdicts["uniform"].unbiased
+
+
+def test_rng_is_the_word_and_seed_a_deprecated_alias(tmp_path):
+    """sweep, compute_reference, run_seed, measure_chart, convergence_report, chart_report and the
+    samplers report take rng=; seed= still works (the same numbers) with a DeprecationWarning."""
+    from mcvar.sampler_report import discrepancy_sweep
+
+    kw = dict(methods=("uniform",), spp=[1, 4, 16], replicates=4, workers=1, progress=False)
+    new = ex.sweep("lecture", rng=5, **kw)
+    with pytest.warns(DeprecationWarning, match=r"sweep\(seed=...\) is deprecated"):
+        old = ex.sweep("lecture", seed=5, **kw)
+    assert all(np.array_equal(new.values[k], old.values[k]) for k in new.values)
+    with pytest.raises(TypeError, match="both rng= and its deprecated alias seed="):
+        ex.sweep("lecture", rng=5, seed=5, **kw)
+    with pytest.raises(TypeError, match="rng must be an integer seed >= 0 here"):
+        ex.sweep("lecture", rng=np.random.default_rng(5), **kw)
+    with pytest.raises(TypeError, match="unexpected keyword argument.*'replicate'"):
+        ex.sweep("lecture", replicate=4)
+    with pytest.warns(DeprecationWarning):
+        assert discrepancy_sweep([16], names=["random"], seed=3) == discrepancy_sweep([16], names=["random"], rng=3)
+    # a settings record is the same as its keywords
+    settings = ex.SweepSettings(methods=("uniform",), spp=(1, 4, 16), replicates=4, rng=5, workers=1,
+                                progress=False)
+    again = ex.sweep("lecture", settings)
+    assert all(np.array_equal(new.values[k], again.values[k]) for k in new.values)

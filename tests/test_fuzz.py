@@ -18,6 +18,7 @@ how many raised.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import warnings
@@ -387,3 +388,207 @@ def test_found_by_the_fuzzer_named_errors():
         I.srgb_to_linear([[0.5, 0.5], [0.5]])
     with pytest.raises(TypeError, match="v must be array-like of real numbers; got ndarray with complex"):
         W.square_to_cosine_hemisphere_pdf(np.array([[0.0, 1.0, 0.0]]) + 1j)
+
+
+# ------------------------------------------------------------------ issue 24: the newer parts
+# Method options, hand-built scenes, piecewise domains, metric and grader
+# arguments. The same invariant: a result that is valid (finite, in range, and
+# for piecewise domains pdf(sample(u)) equal to the returned pdf), or a
+# ValueError / TypeError naming the argument.
+
+from mcvar import metrics as MET  # noqa: E402
+from mcvar.integrators import METHODS  # noqa: E402
+from mcvar.piecewise import PiecewiseConstant1D, PiecewiseConstant2D  # noqa: E402
+from mcvar.scene import Scene, load_scene  # noqa: E402
+from mcvar.testing import grade as GR  # noqa: E402
+
+#: Values a careless user gives an option: right and wrong types, booleans as
+#: strings and numbers, zero, negative, NaN, fractional and far too large counts.
+OPTION_VALUES = [True, False, np.True_, np.False_, "no", "yes", "True", 0, 1, -1, 2, 2.5, 1e-3, 70.0,
+                 np.nan, np.inf, None, 2 ** 40, 1 << 14, "path", [1]]
+OPTION_METHODS = [m for m in METHODS if METHODS[m].options]
+
+
+@st.composite
+def method_options(draw, name):
+    method = METHODS[name]
+    keys = draw(st.lists(st.sampled_from(sorted(method.options)), min_size=1, max_size=3, unique=True))
+    return name, {k: draw(st.one_of(st.just(method.options[k]), st.sampled_from(OPTION_VALUES))) for k in keys}
+
+
+_CORNELL = {}
+
+
+def _scene(name):
+    if name not in _CORNELL:
+        _CORNELL[name] = load_scene(name)
+    return _CORNELL[name]
+
+
+@pytest.mark.parametrize("name", OPTION_METHODS)
+@FUZZ
+@given(data=st.data())
+def test_method_options_are_checked_or_named(name, data):
+    """An option set either passes the method's checks (every bool option then
+    holds a bool) or is refused naming one of the options, before any ray."""
+    _, opts = data.draw(method_options(name))
+    method = METHODS[name]
+    try:
+        resolved = method.resolve_options(opts)
+        if method.check_scene is not None:
+            method.check_scene(_scene("cornell"), resolved)
+    except (ValueError, TypeError) as exc:
+        msg = str(exc)
+        assert any(k in msg for k in opts) or "scene" in msg or "light" in msg, f"{name} {opts}: {msg!r}"
+        event("outcome: named error")
+        return
+    for k, default in method.options.items():
+        if isinstance(default, bool):
+            assert isinstance(resolved[k], (bool, np.bool_)), f"{name}: {k}={resolved[k]!r} accepted"
+    event("outcome: accepted")
+
+
+SCENE_FIELDS = ["triangles", "sphere_centers", "sphere_radii", "prim_material", "prim_emission",
+                "prim_two_sided_emission", "prim_light", "light_origin", "light_edge1", "light_edge2",
+                "light_radiance", "materials", "material_names", "point_light_position", "point_light_intensity"]
+
+
+@st.composite
+def spoiled_scene_field(draw):
+    base = _scene("cornell-spheres")
+    field = draw(st.sampled_from(SCENE_FIELDS))
+    value = getattr(base, field)
+    how = draw(st.sampled_from(["nan", "inf", "huge", "negative", "shape", "str", "drop_row", "float", "good"]))
+    if field in ("materials", "material_names"):
+        value = draw(st.sampled_from([("white",) * len(base.materials), "white", (None,) * len(base.materials),
+                                      value[:1], value]))
+    elif value is None or np.size(value) == 0:
+        value = draw(st.sampled_from([np.full((1, 3), np.nan), np.zeros((2, 2)), None, np.ones((1, 3))]))
+    else:
+        arr = np.array(value, dtype=np.float64 if how in ("nan", "inf", "huge", "negative", "float") else None)
+        if how in ("nan", "inf", "huge", "negative"):
+            arr.flat[draw(st.integers(0, arr.size - 1))] = {"nan": np.nan, "inf": np.inf, "huge": 1e300,
+                                                            "negative": -1.0}[how]
+        elif how == "float":
+            arr = arr + 0.5
+        elif how == "shape":
+            arr = arr.reshape(-1)[: max(1, arr.size - 1)]
+        elif how == "str":
+            arr = arr.astype(str)
+        elif how == "drop_row":
+            arr = arr[1:]
+        value = arr
+    event(f"scene field: {how}")
+    return field, value
+
+
+@FUZZ
+@given(case=spoiled_scene_field())
+def test_scenes_are_valid_or_refused_naming_the_field(case):
+    field, value = case
+    base = _scene("cornell-spheres")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            s = dataclasses.replace(base, **{field: value})
+    except (ValueError, TypeError) as exc:
+        msg = str(exc)
+        assert field in msg or "per primitive" in msg or "light_" in msg, f"{field}: {msg!r}"
+        event("outcome: named error")
+        return
+    n = s.n_triangles + s.n_spheres
+    assert s.triangles.shape == (s.n_triangles, 3, 3) and s.prim_emission.shape == (n, 3)
+    for f in ("triangles", "sphere_centers", "sphere_radii", "prim_emission", "light_origin", "light_edge1",
+              "light_edge2", "light_radiance", "point_light_position", "point_light_intensity"):
+        arr = getattr(s, f)
+        assert np.all(np.isfinite(arr)), f
+    assert np.all(s.prim_emission >= 0) and np.all(s.light_radiance >= 0) and np.all(s.sphere_radii > 0)
+    assert np.all(s.light_area > 0) and all(isinstance(m, B.BSDF) for m in s.materials)
+    event("outcome: accepted")
+
+
+DOMAIN_ENDS = [0.0, -1.0, 1.0, 1e-300, -1e308, 1e308, 5e-324, 1e300, -3.0]
+DOMAIN_WIDTHS = [1.0, 1e-320, 1e-300, 1e-15, 1e-9, 1e308, 1e200, 3.5, np.inf, 0.0, -1.0, np.nan]
+
+
+@FUZZ
+@given(func=st.lists(st.sampled_from([0.0, 1.0, 2.5, 1e-300, 1e300]), min_size=1, max_size=6),
+       lo=st.sampled_from(DOMAIN_ENDS), width=st.sampled_from(DOMAIN_WIDTHS),
+       u=st.lists(st.sampled_from([0.0, 1.0, ONE_MINUS, 0.5, 1e-300, 0.3]), min_size=1, max_size=6))
+def test_piecewise_1d_domains(func, lo, width, u):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        hi = lo + width
+    try:
+        d = PiecewiseConstant1D(func, lo, hi)
+    except (ValueError, TypeError) as exc:
+        assert "domain" in str(exc) or "func" in str(exc), str(exc)
+        event("outcome: named error")
+        return
+    x, pdf, k = d.sample(np.array(u))
+    assert np.all(np.isfinite(x)) and np.all((x >= d.min) & (x <= d.max))
+    assert np.all(np.isfinite(pdf)) and np.all(pdf > 0)
+    np.testing.assert_array_equal(d.pdf(x), pdf)
+    event("outcome: accepted")
+
+
+@FUZZ
+@given(shape=st.tuples(st.integers(1, 4), st.integers(1, 4)),
+       lo=st.tuples(st.sampled_from(DOMAIN_ENDS), st.sampled_from(DOMAIN_ENDS)),
+       width=st.tuples(st.sampled_from(DOMAIN_WIDTHS), st.sampled_from(DOMAIN_WIDTHS)))
+def test_piecewise_2d_domains(shape, lo, width):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        domain = ((lo[0], lo[0] + width[0]), (lo[1], lo[1] + width[1]))
+    f = np.arange(1.0, 1.0 + shape[0] * shape[1]).reshape(shape)
+    try:
+        d = PiecewiseConstant2D(f, domain)
+    except (ValueError, TypeError) as exc:
+        assert "domain" in str(exc), str(exc)
+        event("outcome: named error")
+        return
+    u = np.array([[0.0, 0.0], [1.0, 1.0], [0.5, ONE_MINUS], [0.3, 0.7]])
+    p, pdf, _ = d.sample(u)
+    assert np.all(np.isfinite(p)) and np.all(np.isfinite(pdf)) and np.all(pdf > 0)
+    np.testing.assert_array_equal(d.pdf(p), pdf)
+    event("outcome: accepted")
+
+
+METRIC_VALUES = [None, 1.0, 0.0, -1.0, np.nan, np.inf, "abc", True, 5, -1, 2, 3, 7, 2.5, "last"]
+
+
+METRIC_ARGS = [("relative_mse", "eps"), ("psnr", "data_range"), ("ssim", "data_range"), ("ssim", "channel_axis"),
+               ("ssim", "win_size")]
+
+
+@pytest.mark.parametrize("fn, key", METRIC_ARGS)
+@FUZZ
+@given(value=st.sampled_from(METRIC_VALUES), grey=st.booleans())
+def test_metric_arguments(fn, key, value, grey):
+    if value is None and key == "eps":
+        return
+    rng = np.random.default_rng(3)
+    ref = rng.random((8, 8) if grey else (8, 8, 3))
+    est = ref + 0.05
+    call = {"relative_mse": MET.relative_mse, "psnr": MET.peak_signal_noise_ratio,
+            "ssim": MET.structural_similarity}[fn]
+    _holds(f"{fn}({key}={value!r})", lambda v: call(ref, est, **{key: v}), value, (key,))
+
+
+@FUZZ
+@given(exact=st.one_of(st.just(0.5), st.sampled_from([np.nan, np.inf, "half", [0.5, 0.5], None])),
+       significance=st.one_of(st.just(1e-3), st.sampled_from([0.0, -1.0, 1.0, 1.5, np.nan, "x", True, 0.5])),
+       n=st.one_of(st.just(16), st.sampled_from([0, -1, 2.5, "16", 1])),
+       replicates=st.one_of(st.just(8), st.sampled_from([1, 0, 2.0, 2])))
+def test_grader_arguments(exact, significance, n, replicates):
+    """A grader's bad argument is the teacher's error (named), never a FAIL of
+    the student's code: with a correct estimator, an accepted call passes or
+    fails on statistics only."""
+    est = lambda m, rng: rng.random(m).mean()                # noqa: E731 - a correct student
+
+    def call(_):
+        r = GR.grade_estimator(est, exact, n=n, replicates=replicates, significance=significance,
+                               rng=1, verbose=False)
+        assert "could not use" not in r.reason, r.reason
+        return r.passed
+    _holds("grade_estimator", call, None, ("exact", "significance", "n", "replicates"))

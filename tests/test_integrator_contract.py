@@ -184,5 +184,39 @@ class TestEveryMethod:
 
 
 def test_unknown_method_names_the_known_ones():
-    with pytest.raises(ValueError, match="integrator must be one of.*path"):
+    with pytest.raises(ValueError, match="method must be one of.*path"):
         render(load_scene("cornell"), integrator="whitted")
+
+
+CAMERA = [m for m in METHODS.values() if m.kind == "camera"]
+#: 5 standard errors two-sided, Sidak-corrected over the camera methods x 3 channels
+_FW = 2 * stats.norm.sf(5.0)
+Z_ADAPTIVE = stats.norm.isf((1.0 - (1.0 - _FW) ** (1.0 / (3 * max(len(CAMERA), 1)))) / 2)
+
+
+@pytest.mark.parametrize("method", CAMERA, ids=_ids)
+def test_adaptive_allocation_is_unbiased_against_uniform(method):
+    """The one driver's adaptive allocation (pilot, Neyman allocation, second
+    stage alone in the image) estimates the image mean of uniform allocation:
+    per channel within Z_ADAPTIVE (5 sigma, Sidak over methods and channels)
+    standard errors. The random sampler makes samples iid, so ``variance /
+    spp`` (adaptive: ``s_i^2 / n_i``) gives each pixel's variance of the mean;
+    pixels are independent. The same seed: the method's ``prepare`` (photon
+    map) is shared, the adaptive image's samples (second stage) are drawn from
+    streams the uniform render does not use."""
+    scene = load_scene("cornell")
+    _supported(method, scene)
+    kw = dict(method=method.name, spp=32, res=8, sampler="random", rng=SEED + 6)
+    a = render(scene, allocation="adaptive", **kw)
+    u = render(scene, **kw)
+    assert a.pilot_spp > 0 and a.spp_map.max() > a.spp_map.min()     # really adaptive
+    n_pix = 64
+    se2 = [(r.variance / r.spp).reshape(-1, 3).sum(axis=0) / n_pix ** 2 for r in (a, u)]
+    z = (a.image.mean(axis=(0, 1)) - u.image.mean(axis=(0, 1))) / np.sqrt(se2[0] + se2[1])
+    assert np.all(np.abs(z) < Z_ADAPTIVE), (z, Z_ADAPTIVE)
+
+
+@pytest.mark.parametrize("method", [m for m in METHODS.values() if m.kind != "camera"], ids=_ids)
+def test_adaptive_allocation_needs_a_camera_method(method):
+    with pytest.raises(ValueError, match="camera-kind"):
+        render(load_scene("cornell"), method=method.name, res=4, spp=16, allocation="adaptive")

@@ -9,6 +9,7 @@ means come from the render's own per-sample variance (iid 'random' sampler:
 pixels are independent, so an image mean's variance is the sum of the pixel
 variances over n_pixels^2).
 """
+import dataclasses
 import numpy as np
 import pytest
 
@@ -260,7 +261,7 @@ def test_trace_paths_empty_batch(cornell):
 @pytest.mark.parametrize("kwargs,match", [
     ({"spp": 0}, "spp must be >= 1"),
     ({"spp": -3}, "spp must be >= 1"),
-    ({"integrator": "whitted"}, "integrator must be one of"),
+    ({"integrator": "whitted"}, "method must be one of"),
     ({"sampler": "dart"}, "sampler must be one of"),
     ({"res": 0}, "res must be >= 1"),
     ({"res": (8, 0)}, "height"),
@@ -370,19 +371,20 @@ def test_batches_trace_slices_of_one_stratified_set_per_pixel():
     # A 64-spp Sobol render traced in four 16-spp batches must still see each
     # pixel's 64 points as one (0, 6, 2)-net, not four unrelated 16-point nets.
     from mcvar.discrepancy import is_net
-    from mcvar.integrators import WHOLE_SET_FLOATS, _sample_slices
+    from mcvar.integrators import WHOLE_SET_FLOATS, _whole_pattern
 
     rng = np.random.default_rng(60606)
-    slices = _sample_slices("sobol", 5, 64, [16, 16, 16, 16], 6, rng)
-    assert [s.shape for s in slices] == [(5, 16, 6)] * 4
-    whole = np.concatenate(slices, axis=1)
+    whole = _whole_pattern("sobol", 5, 64, 4, 6, rng)      # batches slice it: whole[:, 16 b:16 (b + 1)]
+    assert whole.shape == (5, 64, 6)
     for pixel in whole:
         assert is_net(pixel[:, 0:2], 6)  # the pixel-position pair
         assert is_net(pixel[:, 2:4], 6)  # and a padded pair
-    # iid points have nothing to keep, and sets past the budget are drawn per batch
-    assert _sample_slices("random", 5, 64, [16] * 4, 6, rng) == [None] * 4
+    # iid points have nothing to keep, one batch needs no pattern, and sets
+    # past the budget are drawn per batch
+    assert _whole_pattern("random", 5, 64, 4, 6, rng) is None
+    assert _whole_pattern("sobol", 5, 64, 1, 6, rng) is None
     n_pix = WHOLE_SET_FLOATS // 64 // 2 + 1      # not even one pair of dimensions fits
-    assert _sample_slices("sobol", n_pix, 64, [16] * 4, 6, rng) == [None] * 4
+    assert _whole_pattern("sobol", n_pix, 64, 4, 6, rng) is None
 
 
 def test_camera_soa_directions_are_the_public_ones_transposed():
@@ -561,3 +563,104 @@ def test_film_variance_from_independent_batches_is_the_per_sample_variance():
     one = Film(3, per_sample=False)
     one.add(BatchResult(np.ones((3, 3)), None, 0), 2)
     assert one.variance((3, 1)) is None               # one batch: no spread to measure
+
+
+# ---------------------------------------------------------------------------
+# The one driver (issue 20): settings, names, stream dimensions, lazy batches
+
+def test_path_settings_are_validated_once_naming_the_field():
+    from mcvar.integrators import PathSettings
+
+    bad = [({"max_depth": 0}, ValueError, "max_depth"), ({"max_depth": True}, TypeError, "max_depth"),
+           ({"max_depth": 2.0}, TypeError, "max_depth"), ({"heuristic": "cutoff"}, ValueError, "heuristic"),
+           ({"kernel": 1}, TypeError, "kernel"), ({"light_sampling": "sphere"}, ValueError, "light_sampling"),
+           ({"rr_depth": -1}, ValueError, "rr_depth"), ({"rr_threshold": 0.0}, ValueError, "rr_threshold"),
+           ({"rr_threshold": float("nan")}, ValueError, "rr_threshold"),
+           ({"rr_threshold": np.bool_(True)}, TypeError, "rr_threshold"),
+           ({"visible_lights": "analytic"}, ValueError, "visible_lights")]
+    for kw, exc, name in bad:
+        with pytest.raises(exc, match=name):
+            PathSettings(**kw)
+    s = PathSettings(max_depth=np.int64(3), rr_threshold=np.float32(0.5))
+    assert type(s.max_depth) is int and s.max_depth == 3 and type(s.rr_threshold) is float
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.max_depth = 4
+
+
+def test_path_settings_object_gives_the_image_of_its_keywords(cornell):
+    from mcvar.integrators import PathSettings
+
+    kw = dict(spp=4, res=8, rng=SEED, sampler="sobol")
+    a = render(cornell, max_depth=3, kernel="general", rr_threshold=0.5, **kw)
+    b = render(cornell, settings=PathSettings(max_depth=3, kernel="general", rr_threshold=0.5), **kw)
+    assert np.array_equal(a.image, b.image)
+    with pytest.raises(ValueError, match="not both"):
+        render(cornell, settings=PathSettings(max_depth=3), max_depth=3, **kw)
+    with pytest.raises(ValueError, match="does not take.*kernel"):      # light does not read the path kernel
+        render(cornell, method="light", settings=PathSettings(kernel="general"), **kw)
+    # trace_paths takes the record or its fields, the same radiance
+    rng = np.random.default_rng(SEED)
+    d = cornell.camera.ray_directions((8, 8), np.arange(64), rng.random((64, 2)))
+    o = np.broadcast_to(cornell.camera.position, d.shape)
+    u = rng.random((64, 30))
+    r1, _ = trace_paths(cornell, o, d, u, rng=1, max_depth=4, heuristic="balance")
+    r2, _ = trace_paths(cornell, o, d, u, rng=1, settings=PathSettings(max_depth=4, heuristic="balance"))
+    assert np.array_equal(r1, r2)
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        trace_paths(cornell, o, d, u, rng=1, depth=4)
+
+
+def test_method_is_the_name_and_integrator_its_alias(cornell):
+    kw = dict(spp=2, res=4, rng=SEED)
+    a = render(cornell, method="direct", **kw)
+    b = render(cornell, integrator="direct", **kw)
+    assert np.array_equal(a.image, b.image) and a.method == a.integrator == "direct"
+    with pytest.raises(ValueError, match="not both"):
+        render(cornell, method="direct", integrator="path", **kw)
+
+
+def _recording(seen, run, job):
+    seen.append(None if job.u is None else job.u.shape[1])
+    return run(job)
+
+
+@pytest.mark.parametrize("name, columns", [("path", 20), ("direct", 8), ("albedo", 2), ("photon", 2),
+                                           ("pssmlt", None), ("bdpt", 2)])
+def test_the_driver_draws_only_the_columns_a_method_reads(cornell, name, columns):
+    """Method.stream_dims: the sampler feeds path's 20 columns (SAMPLER_DIM),
+    direct's depth-2 8, the camera columns of first-hit, photon and bdpt, and
+    none for pssmlt (its chains draw their own states: job.u is None)."""
+    from functools import partial
+
+    from mcvar.integrators import METHODS
+
+    seen = []
+    m = METHODS[name]
+    method = dataclasses.replace(m, run_batch=partial(_recording, seen, m.run_batch))
+    render(cornell, method=method, spp=4, res=4, sampler="sobol", rng=SEED)
+    assert seen and set(seen) == {columns}
+
+
+def test_a_huge_spp_starts_at_once_and_stops_on_ctrl_c(cornell):
+    """spp = 2^40 at 4 x 4 is 2^28 batches of 4096 spp: they are described lazily
+    (no list of batches, no spawn of 2^28 generators), so the first batch runs at
+    once with bounded memory; a KeyboardInterrupt from the progress callback
+    keeps it. Adaptive allocation too (a pixel's 2^35 pilot samples cut into
+    batches of PILOT_PATHS_PER_BATCH paths)."""
+    import tracemalloc
+
+    from mcvar.integrators import PATHS_PER_BATCH
+
+    def stop(done, total):
+        raise KeyboardInterrupt
+
+    tracemalloc.start()
+    try:
+        r = render(cornell, spp=2 ** 40, res=4, rng=SEED, progress=stop)
+        a = render(cornell, spp=2 ** 40, res=4, rng=SEED, progress=stop, allocation="adaptive")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert r.interrupted and r.spp == PATHS_PER_BATCH // 16
+    assert a.interrupted and np.all(np.isfinite(a.image))
+    assert peak < 200 * 2 ** 20

@@ -19,7 +19,7 @@ EXPECTED = {"html", "csv", "fits_csv", "variance", "mse_time", "bias", "efficien
 def fake_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
     target = fake_target(methods=("unbiased", "biased"), samplers=("random", "half"), spp=(1, 4, 16, 64))
-    paths = report.convergence_report(target, out, replicates=6, seed=31337, workers=1, progress=False)
+    paths = report.convergence_report(target, out, replicates=6, rng=31337, workers=1, progress=False)
     return out, target, paths
 
 
@@ -57,7 +57,7 @@ def test_csv_holds_the_sweeps_numbers_and_the_table_is_ranked(fake_report):
     assert len(rows) == 2 * 2 * 4
     # the same sweep again (all runs now cached) gives the same numbers as the CSV
     again = ex.sweep(target, methods=("unbiased", "biased"), samplers=("random", "half"), replicates=6,
-                     seed=31337, workers=1, progress=False, cache_dir=out / ".cache")
+                     rng=31337, workers=1, progress=False, cache_dir=out / ".cache")
     assert again.computed == 0
     for row, m in zip(rows, again.metrics):
         assert (row["method"], row["sampler"], int(row["spp"])) == (m.method, m.sampler, m.spp)
@@ -78,13 +78,13 @@ def test_rerun_resumes_from_the_cache(fake_report, tmp_path):
     counting = Counting()
     target = fake_target(evaluate=counting, methods=("unbiased", "biased"), samplers=("random", "half"),
                          spp=(1, 4, 16, 64))
-    report.convergence_report(target, out, replicates=6, seed=31337, workers=1, progress=False)
+    report.convergence_report(target, out, replicates=6, rng=31337, workers=1, progress=False)
     assert counting.calls == 0
 
 
 def test_integrand_values_need_no_image_panel(tmp_path):
     target = fake_target(evaluate=_scalar, exact=np.array([1.0]), reference_task=None)
-    paths = report.convergence_report(target, tmp_path, replicates=4, seed=7, workers=1, progress=False)
+    paths = report.convergence_report(target, tmp_path, replicates=4, rng=7, workers=1, progress=False)
     assert "images" not in paths and "N levels" in paths["html"].read_text()
 
 
@@ -112,10 +112,12 @@ def test_cli_converge_on_an_integrand(tmp_path, capsys):
 
 def test_demo_runs_its_settings(tmp_path, monkeypatch, capsys):
     pytest.importorskip("mcvar.integrators")
-    tiny = dict(report.DEMO_SETTINGS, methods=("path", "path:2"), samplers=("random",), spp=(1, 4, 16),
+    import mcvar.demo
+
+    tiny = dict(mcvar.demo.DEMO_SETTINGS, methods=("path", "path:2"), samplers=("random",), spp=(1, 4, 16),
                 replicates=3, res=4, chart=dict(quick=True, methods=("path",), res=4, replicates=3,
                                                 levels=(1, 4), reference_spp=16, reference_chunks=2))
-    monkeypatch.setattr(report, "DEMO_SETTINGS", tiny)
+    monkeypatch.setattr(mcvar.demo, "DEMO_SETTINGS", tiny)
     assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
     page = (tmp_path / "report.html").read_text()
     assert "Convergence report: cornell" in page and "4 x 4" in page

@@ -29,10 +29,12 @@ def _call(name, n, rng, **kw):
 # ---------------------------------------------------------------- contracts
 
 def test_registry_names_are_the_contract():
-    assert NAMES == ["random", "grid", "jittered", "n_rooks", "multi_jittered",
-                     "hammersley", "halton", "sobol", "blue_noise"]
-    for name, fn in S.SAMPLERS.items():
-        assert S.get_sampler(name) is fn
+    # the built-in nine first, in this order; a sampler added later follows them
+    assert NAMES[:9] == ["random", "grid", "jittered", "n_rooks", "multi_jittered",
+                         "hammersley", "halton", "sobol", "blue_noise"]
+    for name, record in S.SAMPLERS.items():
+        assert isinstance(record, S.Sampler) and record.name == name
+        assert S.get_sampler(name) is record.function and S.sampler_record(name) is record
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -346,7 +348,7 @@ def test_sizes_that_cannot_fit_are_refused_before_allocating(name):
 
 
 def test_memory_limit_is_overridable_and_exact(monkeypatch):
-    words = S._WORDS_PER_COORD["random"]
+    words = S.SAMPLERS["random"].words_per_coord
     fits = 1000
     monkeypatch.setattr(S, "MAX_BYTES", 8 * words * 2 * fits)
     assert S.random(fits, rng=1).shape == (fits, 2)  # exactly at the limit: allowed
@@ -356,7 +358,7 @@ def test_memory_limit_is_overridable_and_exact(monkeypatch):
         S.pixel_samples("random", 1000, 16, rng=1)
 
 
-@pytest.mark.parametrize("name", ["grid", "jittered"])
+@pytest.mark.parametrize("name", [n for n, r in S.SAMPLERS.items() if r.square])
 def test_not_a_perfect_square(name):
     with pytest.raises(ValueError, match="n must be a perfect square.*got n=15"):
         S.get_sampler(name)(15)
@@ -424,8 +426,68 @@ def test_deterministic_names_exactly_the_samplers_that_ignore_rng():
 @pytest.mark.parametrize("name, dim", [("sobol", 2), ("sobol", 5), ("sobol", 6), ("halton", 3), ("random", 4)])
 def test_pixel_sample_columns_are_pixel_samples_transposed(name, dim):
     """The wavefront's column layout holds exactly pixel_samples' values for the same rng."""
-    from mcvar.samplers import _pixel_sample_columns
+    from mcvar.samplers import pixel_sample_columns
     a = S.pixel_samples(name, 37, 16, dim=dim, rng=7).reshape(-1, dim).T
-    b = _pixel_sample_columns(name, 37, 16, dim=dim, rng=7)
+    b = pixel_sample_columns(name, 37, 16, dim=dim, rng=7)
     assert b.shape == (dim, 37 * 16) and b.flags.c_contiguous
     np.testing.assert_array_equal(a, b)
+
+
+# ---------------------------------------------------------------- the Sampler record
+
+def test_records_say_what_the_old_tables_said():
+    """The fields replace _WORDS_PER_COORD, EXPECTED_STAR_SLOPES, _IID_SAMPLERS and the
+    ("grid", "jittered") literals: check them against the samplers' own behaviour."""
+    for name, rec in S.SAMPLERS.items():
+        # square: exactly the samplers that refuse a non-square count
+        refuses = False
+        try:
+            rec(15, rng=1)
+        except ValueError:
+            refuses = True
+        assert refuses == rec.square, name
+        # deterministic: exactly those giving the same points for two seeds
+        a, b = rec(64, rng=1), rec(64, rng=2)
+        assert np.array_equal(a, b) == rec.deterministic, name
+    assert [n for n, r in S.SAMPLERS.items() if r.iid] == ["random"]
+    assert S.DETERMINISTIC == {n for n, r in S.SAMPLERS.items() if r.deterministic}
+
+
+def test_unknown_sampler_is_a_value_error_everywhere():
+    from mcvar.estimators import estimate_mean
+    from mcvar.sampler_report import discrepancy_sweep
+
+    for call in (lambda: S.pixel_samples("halton2", 4, 16),
+                 lambda: S.pixel_sample_columns("halton2", 4, 16),
+                 lambda: S.sampler_record("halton2"),
+                 lambda: discrepancy_sweep([16], names=["halton2"]),
+                 lambda: estimate_mean(lambda u: u[:, 0], n=16, sampler="halton2", rng=1)):
+        with pytest.raises(ValueError, match="halton2"):
+            call()
+
+
+def test_a_record_checks_its_fields():
+    with pytest.raises(ValueError, match="name"):
+        S.Sampler("not a name", S.random, -0.5)
+    with pytest.raises(TypeError, match="function"):
+        S.Sampler("toy", 3, -0.5)
+    with pytest.raises(ValueError, match="star_slope"):
+        S.Sampler("toy", S.random, 0.5)
+    with pytest.raises(ValueError, match="words_per_coord"):
+        S.Sampler("toy", S.random, -0.5, words_per_coord=0)
+    with pytest.raises(ValueError, match="already registered"):
+        S.register_sampler(S.Sampler("sobol", S.sobol, -1.0))
+    with pytest.raises(TypeError, match="Sampler"):
+        S.register_sampler(S.sobol)
+
+
+def test_default_pixel_sets_are_shifted_copies_of_one_base_set():
+    """A record without pixel_sets gets one base set and a Cranley-Patterson shift per
+    pixel: every pixel's set is the base set moved on the torus (exact identity)."""
+    base = S.hammersley(16)
+    sets = S.shifted_pixel_sets(lambda n, rng=None: S.hammersley(n), 5, 16, np.random.default_rng(4))
+    shift = np.mod(sets[:, :1, :] - base[None, :1, :], 1.0)
+    assert np.allclose(np.mod(base[None] + shift, 1.0), sets, atol=1e-12)
+    assert len({tuple(s) for s in shift[:, 0, :]}) == 5   # a different shift per pixel
+    with pytest.raises(ValueError, match=r"shape \(16, 2\)"):
+        S.shifted_pixel_sets(lambda n, rng=None: np.zeros((n, 3)), 2, 16, np.random.default_rng(1))

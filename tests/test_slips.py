@@ -140,7 +140,7 @@ def test_the_page_is_in_the_nav_and_linked():
     assert "slips.md" in (ROOT / "README.md").read_text()
 
 
-@pytest.mark.parametrize("number", ["01", "02", "03", "04", "05", "06"])
+@pytest.mark.parametrize("number", ["01", "02", "03", "04", "05", "06", "07", "08", "09"])
 def test_notebook_measures_its_slips_and_links_the_page(number):
     import nbformat
     path = next((ROOT / "notebooks").glob(f"{number}_*.ipynb"))

@@ -239,9 +239,10 @@ def test_lambertian_light_hits_weigh_like_the_general_loop(cornell, heuristic):
     exactly what the general ``Transport.hit_emission`` adds (float32 state:
     to 1e-5 relative). A wrong light density (e.g. ``cos_l`` multiplied
     instead of divided) fails here."""
-    from mcvar.integrators import HEURISTICS
+    from mcvar.integrators import PathSettings
     from mcvar.integrators.emitters import Emitters
     from mcvar.integrators.lambertian import _hit_light, _Tables
+    from mcvar.integrators.settings import STRATEGIES
     from mcvar.integrators.state import PathState, SceneTables, Transport
     from mcvar.integrators.stream import SampleStream
     from mcvar.tracer import Tracer
@@ -265,9 +266,9 @@ def test_lambertian_light_hits_weigh_like_the_general_loop(cornell, heuristic):
     p = state.d * t.astype(np.float32) + state.o
 
     def transport():
-        return Transport(cornell, tracer, emitters, tables, n, nee=True, bsdf_hits=True, mis=True,
-                         weight_fn=HEURISTICS[heuristic], limit=1024, roulette=True,
-                         stream=SampleStream(None, rng, camera=False))
+        return Transport(cornell, tracer, n, strategies=STRATEGIES["path"],
+                         settings=PathSettings(heuristic=heuristic), stream=SampleStream(None, rng, camera=False),
+                         tables=tables)
     general, kernel = transport(), transport()
     general.hit_emission(2, state, p, prim)
     _hit_light(kernel, _Tables(kernel), state, t.astype(np.float32), prim)

@@ -33,7 +33,7 @@ Modules, each importing only those listed before it
 convergence studies). Every public name is importable from
 ``mcvar.estimators`` itself.
 """
-from .monte_carlo import Estimate, contribution, estimate, estimate_mean
+from .monte_carlo import Estimate, EstimateSettings, contribution, estimate, estimate_mean
 from .mis import (balance_heuristic, hemisphere_estimate, mis_estimate, mis_weights, one_sample_mis,
                   one_sample_mis_contribution, power_heuristic)
 from .studies import (ConvergenceStudy, ReplicateStudy, convergence_study, efficiency, replicate_moments,
@@ -43,6 +43,7 @@ __all__ = [
     "Estimate",
     "estimate",
     "estimate_mean",
+    "EstimateSettings",
     "contribution",
     "one_sample_mis_contribution",
     "hemisphere_estimate",

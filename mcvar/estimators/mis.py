@@ -12,8 +12,9 @@ import numpy as np
 
 from .._validation import as_array, check_choice, check_count, check_positive
 from .. import warps
-from .monte_carlo import (_BATCH, Estimate, _children, _divide, _eval_f, _iid, _mean_of, _Replicator,
-                          _resolve_replicates, _resolve_sampler, contribution, estimate_mean)
+from .monte_carlo import (Estimate, _children, _divide, _eval_f, _iid, _mean_of, _Replicator,
+                          _resolve_replicates, _resolve_sampler, EstimateSettings, contribution, estimate_mean,
+                          estimate_settings)
 
 # --------------------------------------------------------------------------
 # MIS weights
@@ -230,9 +231,9 @@ def _mis_contribution(f, pairs, k, counts, heuristic, beta, zero_pdf):
     return g
 
 
-def mis_estimate(f, strategies, *, n, heuristic: Literal["balance", "power"] = "balance",
-                 beta: float = 2.0, sampler="random", rng=None, replicates=None,
-                 zero_pdf: Literal["raise", "drop"] = "raise", batch: int = _BATCH) -> Estimate:
+def mis_estimate(f, strategies, *, heuristic: Literal["balance", "power"] = "balance", beta: float = 2.0,
+                 zero_pdf: Literal["raise", "drop"] = "raise", settings: EstimateSettings | None = None,
+                 **options) -> Estimate:
     """Multi-sample MIS: ``n_k`` samples from each strategy, weighted and summed.
 
     Parameters
@@ -242,12 +243,17 @@ def mis_estimate(f, strategies, *, n, heuristic: Literal["balance", "power"] = "
     strategies : sequence of (sample, pdf)
         K strategies over the same domain and measure: warps
         ``sample(u) -> x`` with their densities ``pdf(x) -> (n,)``.
-    n : int or sequence of int
-        Samples per strategy ``n_k`` (an int gives every strategy the same).
     heuristic : {'balance', 'power'}
         Weighting (:func:`mis_weights`); ``beta`` is the power's exponent.
-    sampler, rng, replicates, zero_pdf, batch
-        As in :func:`estimate`; each strategy draws from its own stream.
+
+    Other Parameters
+    ----------------
+    n : int or sequence of int
+        Samples per strategy ``n_k`` (an int gives every strategy the same).
+    settings, sampler, rng, replicates, zero_pdf, batch
+        As in :func:`estimate` (:class:`EstimateSettings` or its fields; no
+        tolerance: ``atol``/``rtol`` are a ``ValueError``); each strategy
+        draws from its own stream.
 
     Returns
     -------
@@ -276,6 +282,10 @@ def mis_estimate(f, strategies, *, n, heuristic: Literal["balance", "power"] = "
     """
     if not callable(f):
         raise TypeError(f"f must be callable; got {type(f).__name__}")
+    opts = estimate_settings(settings, options, "mis_estimate")
+    if opts.atol is not None or opts.rtol is not None:
+        raise ValueError("mis_estimate takes no tolerance (atol, rtol): give the samples per strategy, n")
+    n, sampler, rng, replicates, batch = opts.n, opts.sampler, opts.rng, opts.replicates, opts.batch
     pairs = _strategies(strategies)
     k = len(pairs)
     counts = [n] * k if isinstance(n, numbers.Integral) and not isinstance(n, bool) else list(n)
@@ -354,11 +364,9 @@ def one_sample_mis_contribution(f, strategies, *, probabilities=None,
     return g
 
 
-def one_sample_mis(f, strategies, *, n, probabilities=None,
-                   heuristic: Literal["balance", "power"] = "balance", beta: float = 2.0,
-                   sampler="random", rng=None, replicates=None,
-                   zero_pdf: Literal["raise", "drop"] = "raise", atol=None, rtol=None,
-                   level: float = 0.99, max_n: int = 1 << 28, batch: int = _BATCH) -> Estimate:
+def one_sample_mis(f, strategies, *, probabilities=None, heuristic: Literal["balance", "power"] = "balance",
+                   beta: float = 2.0, zero_pdf: Literal["raise", "drop"] = "raise",
+                   settings: EstimateSettings | None = None, **options) -> Estimate:
     """One-sample MIS: each sample picks one strategy at random, then is weighted.
 
     Strategy ``k`` is chosen with probability ``c_k`` from the first
@@ -370,12 +378,17 @@ def one_sample_mis(f, strategies, *, n, probabilities=None,
     ----------
     f, strategies
         As in :func:`mis_estimate`.
-    n : int
-        Total samples.
     probabilities : array_like, shape (K,), optional
         Selection probabilities ``c_k`` (> 0, summing to 1); default uniform.
-    heuristic, beta, sampler, rng, replicates, zero_pdf, atol, rtol, level, max_n, batch
-        As in :func:`mis_estimate` and :func:`estimate`.
+    heuristic, beta, zero_pdf
+        As in :func:`mis_estimate`.
+
+    Other Parameters
+    ----------------
+    n : int
+        Total samples.
+    settings, sampler, rng, replicates, atol, rtol, level, max_n, batch
+        As in :func:`estimate` (:class:`EstimateSettings` or its fields).
 
     Returns
     -------
@@ -392,10 +405,10 @@ def one_sample_mis(f, strategies, *, n, probabilities=None,
     .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
        Simulation", PhD thesis, Stanford University, 1997, ch. 9.
     """
+    settings = estimate_settings(settings, options, "one_sample_mis")
     g = one_sample_mis_contribution(f, strategies, probabilities=probabilities, heuristic=heuristic,
                                     beta=beta, zero_pdf=zero_pdf)
-    return estimate_mean(g, n=n, sampler=sampler, rng=rng, replicates=replicates, atol=atol,
-                         rtol=rtol, level=level, max_n=max_n, batch=batch)
+    return estimate_mean(g, settings)
 
 
 _HEMISPHERE = {
@@ -404,9 +417,8 @@ _HEMISPHERE = {
 }
 
 
-def hemisphere_estimate(radiance, *, n, method: Literal["uniform", "cosine", "mis"] = "cosine",
-                        sampler="random", rng=None, replicates=None, atol=None, rtol=None,
-                        level: float = 0.99, max_n: int = 1 << 28) -> Estimate:
+def hemisphere_estimate(radiance, *, method: Literal["uniform", "cosine", "mis"] = "cosine",
+                        settings: EstimateSettings | None = None, **options) -> Estimate:
     """Estimate ``int_H L_i(w) cos(theta) dw`` over the hemisphere about +y.
 
     Parameters
@@ -414,15 +426,18 @@ def hemisphere_estimate(radiance, *, n, method: Literal["uniform", "cosine", "mi
     radiance : callable
         ``L_i(w) -> (n,)`` or ``(n, 3)`` for local directions ``w`` (normal
         +y), finite and >= 0.
-    n : int
-        Samples.
     method : {'uniform', 'cosine', 'mis'}
         ``'uniform'``: ``p = 1 / (2 pi)``, contribution ``2 pi L_i cos``;
         ``'cosine'``: ``p = cos / pi``, contribution ``pi L_i`` ('more
         radiance per sample'); ``'mis'``: one-sample MIS of the two with the
         balance heuristic (each picked with probability 1/2).
-    sampler, rng, replicates, atol, rtol, level, max_n
-        As in :func:`estimate`.
+
+    Other Parameters
+    ----------------
+    n : int
+        Samples.
+    settings, sampler, rng, replicates, atol, rtol, level, max_n, batch
+        As in :func:`estimate` (:class:`EstimateSettings` or its fields).
 
     Returns
     -------
@@ -435,6 +450,7 @@ def hemisphere_estimate(radiance, *, n, method: Literal["uniform", "cosine", "mi
     the edge of the unit square; there ``L_i cos = 0`` so nothing is lost.
     """
     check_choice(method, "method", ("uniform", "cosine", "mis"))
+    settings = estimate_settings(settings, options, "hemisphere_estimate")
     if not callable(radiance):
         raise TypeError(f"radiance must be callable; got {type(radiance).__name__}")
 
@@ -450,5 +466,4 @@ def hemisphere_estimate(radiance, *, n, method: Literal["uniform", "cosine", "mi
     else:
         sample, pdf = _HEMISPHERE[method]
         g = contribution(f, sample=sample, pdf=pdf)
-    return estimate_mean(g, n=n, sampler=sampler, rng=rng, replicates=replicates, atol=atol,
-                         rtol=rtol, level=level, max_n=max_n)
+    return estimate_mean(g, settings)

@@ -14,12 +14,12 @@ from typing import Literal
 import numpy as np
 from scipy import stats
 
-from .._validation import as_array, as_rng, check_choice, check_count, check_positive, check_probability
-from ..samplers import digital_shift, get_sampler
+from .._validation import (as_array, as_rng, check_choice, check_count, check_positive, check_probability,
+                           settings_with)
+from ..samplers import SAMPLERS, digital_shift, get_sampler
 
 _METHODS = ("iid", "replicates")
 _BATCH = 1 << 20          # rows evaluated at once: bounds memory, not results
-_IID_SAMPLERS = ("random",)
 
 
 # --------------------------------------------------------------------------
@@ -335,10 +335,12 @@ def _resolve_sampler(sampler):
 
 
 def _resolve_replicates(replicates, name) -> int:
+    # a named iid sampler needs no replicates; a callable's points are not known to be iid
+    iid = name is not None and SAMPLERS[name].iid
     if replicates is None:
-        return 1 if name in _IID_SAMPLERS else 16
+        return 1 if iid else 16
     r = check_count(replicates, "replicates")
-    if r == 1 and name is not None and name not in _IID_SAMPLERS:
+    if r == 1 and name is not None and not iid:
         raise ValueError(f"replicates must be >= 2 for sampler {name!r}: the iid standard error is wrong "
                          "for stratified and QMC points, whose samples are dependent; got 1")
     return r
@@ -393,8 +395,31 @@ def _target(est: Estimate, tol) -> np.ndarray:
     return np.maximum(a, r * np.abs(np.asarray(est.mean)))
 
 
-def estimate_mean(g, *, n, sampler="random", rng=None, replicates=None, atol=None, rtol=None,
-                  level: float = 0.99, max_n: int = 1 << 28, batch: int = _BATCH) -> Estimate:
+@dataclass(frozen=True)
+class EstimateSettings:
+    """How an estimator draws and stops: the keywords of :func:`estimate_mean` (see there),
+    shared by :func:`estimate` and the MIS estimators. ``n`` has no default."""
+
+    n: int | None = None
+    sampler: object = "random"
+    rng: object = None
+    replicates: int | None = None
+    atol: float | None = None
+    rtol: float | None = None
+    level: float = 0.99
+    max_n: int = 1 << 28
+    batch: int = _BATCH
+
+
+def estimate_settings(settings, options: dict, where: str) -> EstimateSettings:
+    """``settings`` with the keyword ``options`` (its fields) applied; ``n`` must be given."""
+    s = settings_with(EstimateSettings, settings, options, where)
+    if s.n is None:
+        raise TypeError(f"{where}() needs n, the number of samples (keyword n= or EstimateSettings.n)")
+    return s
+
+
+def estimate_mean(g, settings: EstimateSettings | None = None, **options) -> Estimate:
     """Estimate ``E[g(U)]``, ``U`` uniform on the unit square, from any 2D sampler.
 
     The engine under :func:`estimate`: ``g`` maps unit-square points
@@ -406,6 +431,13 @@ def estimate_mean(g, *, n, sampler="random", rng=None, replicates=None, atol=Non
     ----------
     g : callable
         ``g(u) -> contributions``; must return finite values.
+    settings : EstimateSettings, optional
+        The options below as one record; the keywords ``n``, ``sampler``,
+        ``rng``, ``replicates``, ``atol``, ``rtol``, ``level``, ``max_n`` and
+        ``batch`` replace its fields (any other keyword is a ``TypeError``).
+
+    Other Parameters
+    ----------------
     n : int
         Number of samples (``>= 1``). With ``replicates = R > 1`` each
         replicate gets ``n // R`` points (``n >= 2 R``) and the Estimate's
@@ -474,14 +506,16 @@ def estimate_mean(g, *, n, sampler="random", rng=None, replicates=None, atol=Non
     """
     if not callable(g):
         raise TypeError(f"g must be callable; got {type(g).__name__}")
-    n = check_count(n, "n")
-    max_n = check_count(max_n, "max_n")
-    batch = check_count(batch, "batch")
-    level = check_probability(level, "level")
+    opts = estimate_settings(settings, options, "estimate_mean")
+    rng, atol, rtol = opts.rng, opts.atol, opts.rtol
+    n = check_count(opts.n, "n")
+    max_n = check_count(opts.max_n, "max_n")
+    batch = check_count(opts.batch, "batch")
+    level = check_probability(opts.level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level must lie in (0, 1); got {level}")
-    fn, name = _resolve_sampler(sampler)
-    r = _resolve_replicates(replicates, name)
+    fn, name = _resolve_sampler(opts.sampler)
+    r = _resolve_replicates(opts.replicates, name)
     tol = _tolerance(atol, rtol)
     if r == 1:
         gen = as_rng(rng)
@@ -561,9 +595,8 @@ def _replicates_to_tolerance(g, rep, m, batch, tol, level, max_n) -> Estimate:
         est = Estimate.from_replicates(np.stack([np.asarray(_mean_of(g, u, batch).mean) for u in sets]), m)
 
 
-def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=None, rtol=None,
-             replicates=None, level: float = 0.99, max_n: int = 1 << 28,
-             zero_pdf: Literal["raise", "drop"] = "raise", batch: int = _BATCH) -> Estimate:
+def estimate(f, *, sample=None, pdf=None, zero_pdf: Literal["raise", "drop"] = "raise",
+             settings: EstimateSettings | None = None, **options) -> Estimate:
     """The Monte Carlo estimator ``(1/N) sum_j f(X_j) / p(X_j)``, with its error.
 
     ``X_j = sample(U_j)`` for unit-square points ``U_j`` from ``sampler``: a
@@ -583,10 +616,13 @@ def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=No
     pdf : callable, optional
         The warp's density ``pdf(x) -> (n,)`` in the measure of the integral
         (solid angle for directions). Default: 1 (uniform on the square).
-    n, sampler, rng, replicates, atol, rtol, level, max_n, batch
-        As in :func:`estimate_mean`.
     zero_pdf : {'raise', 'drop'}, optional
         What a sampled point with ``pdf = 0`` and ``f != 0`` means; see Notes.
+
+    Other Parameters
+    ----------------
+    settings, n, sampler, rng, replicates, atol, rtol, level, max_n, batch
+        As in :func:`estimate_mean` (:class:`EstimateSettings` or its fields).
 
     Returns
     -------
@@ -622,6 +658,5 @@ def estimate(f, *, sample=None, pdf=None, n, sampler="random", rng=None, atol=No
     >>> abs(e.mean - 2) < 5 * e.stderr, round(e.variance, 1)
     (True, 4.0)
     """
-    return estimate_mean(contribution(f, sample=sample, pdf=pdf, zero_pdf=zero_pdf), n=n, sampler=sampler, rng=rng,
-                         replicates=replicates, atol=atol, rtol=rtol, level=level, max_n=max_n,
-                         batch=batch)
+    settings = estimate_settings(settings, options, "estimate")
+    return estimate_mean(contribution(f, sample=sample, pdf=pdf, zero_pdf=zero_pdf), settings)

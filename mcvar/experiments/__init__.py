@@ -27,10 +27,10 @@ name is importable from ``mcvar.experiments`` itself.
 """
 from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
 from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target, photo_target
-from .runs import CACHE_VERSION, SerialExecutor, run_seed
+from .runs import CACHE_VERSION, SerialExecutor, root_seed, run_seed
 from .reference import Reference, compute_reference
 from .analysis import BlockBias, ConfigMetrics, MethodFits, Verdict, block_bias_test, image_bias_verdict
-from .sweeps import SweepResult, sweep
+from .sweeps import SweepResult, SweepSettings, sweep
 from .chart import ChartResult, ChartRow, Knob, measure_chart, register_knob
 
 __all__ = [
@@ -51,8 +51,10 @@ __all__ = [
     "load_target",
     "parse_method",
     "run_seed",
+    "root_seed",
     "compute_reference",
     "sweep",
+    "SweepSettings",
     "denoise_tv",
     "denoise_weight",
     "denoised_target",

@@ -15,64 +15,54 @@ cached path-traced reference, and MSE x time at the largest level.
 The accuracy knob
 -----------------
 Most methods get better with samples per pixel; photon mapping with photons,
-SPPM with iterations, radiosity with a finer mesh. Each chart method has a
-:class:`Knob`: what its level counts, the levels of the quick and the default
-chart, and ``options(level) -> dict`` of keyword arguments of
-:func:`mcvar.integrators.render` (the integrator name, ``spp`` and the
-method's own options). :data:`KNOBS` holds the built-in ones; a method that
-registers later declares its own with :func:`register_knob` (a method without
-one is measured in spp). A knob whose options the registered method does not
-accept falls back to spp, and the row's note says so.
+SPPM with iterations, radiosity with a finer mesh. A method declares its
+:class:`~mcvar.integrators.knobs.Knob` in its registration
+(``Method(..., knob=...)``): what its level counts, the levels of the quick and
+the default chart, and ``options(level) -> dict`` of keyword arguments of
+:func:`mcvar.integrators.render`. A method without one is measured in spp. A
+knob whose options the registered method does not accept falls back to spp,
+and the row's note says so.
 
 Which methods
 -------------
-The chart's rows are :data:`CHART_METHODS` (``raster, path, path_depth3,
-light, bdpt, pssmlt, photon, sppm, radiosity``; ``path_depth3`` is ``path``
-with ``max_depth=3``) whose integrator is registered, followed by any other
-registered method that declares both a chart knob (:func:`register_knob`) and
-a lecture claim (``Method.lecture`` of the integrator registry). A method that
-is not registered has no row; it gets one when it registers.
+Everything about a method's row is in its registry record: ``Method.chart_row``
+(the lecture's row it answers), ``Method.knob``, ``Method.theory`` (what theory
+says, with the reason shown where the lecture differs) and
+``Method.chart_depths`` (fixed depths also charted: ``path`` charts
+``'path:3'``, path tracing with ``max_depth=3``; ``'path_depth3'`` is accepted
+as an alias of ``'path:3'``). :func:`chart_methods` lists the rows in the
+lecture's order, then any other registered method with both a knob and a
+lecture claim (``Method.lecture``). A method that is not registered has no row;
+it gets one when it registers.
 
-The lecture's claim of a chart method is the slide's (:data:`LECTURE_CHART`):
-the chart quotes the lecture, so a registry claim for a method the slide
-names does not replace it (``path`` registers ``Method.lecture = ('yes',
-'yes')``, what theory says, while the slide says 'almost'). Other methods
-take ``Method.lecture``.
+The lecture's claim of a chart method is the slide's (:data:`LECTURE_ROWS` of its
+``chart_row``): the chart quotes the lecture, so ``path``'s registered
+``Method.lecture = ('almost', 'almost')`` and theory's ``('yes', 'yes')`` are
+both kept. Methods on no slide row take ``Method.lecture``.
 """
 from __future__ import annotations
 
 import os
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Callable
+from types import MappingProxyType
 
 import numpy as np
 
-from .._validation import check_count
-from .targets import Target, _check_reference_settings, _scene
-from .runs import SerialExecutor
+from .._validation import check_bool, check_count, seed_alias, settings_with
+from ..integrators.knobs import Knob, depth_knob, spp_knob
+from .targets import Target, _check_reference_settings, _scene, parse_method
+from .runs import SerialExecutor, root_seed
 from .reference import compute_reference
 from .sweeps import sweep
 from .analysis import image_bias_verdict
 
-__all__ = ["CHART_METHODS", "LECTURE_CHART", "LECTURE_ROWS", "THEORY", "KNOBS", "CHART_COLUMNS",
-           "QUICK", "DEFAULT", "BLOCK", "Knob", "ChartRow", "ChartResult", "register_knob", "chart_methods",
-           "lecture_chart_claim", "chart_target", "emitter_pixels", "measure_chart"]
-
-#: The chart's methods in the lecture's order: method -> the lecture's row it answers.
-CHART_METHODS = {
-    "raster": "Rasterization",
-    "path": "Path Tracing",
-    "path_depth3": "Path Tracing",
-    "light": "Path Tracing",
-    "bdpt": "Bidirectional Path Tracing",
-    "pssmlt": "Metropolis Light Transport",
-    "photon": "Photon Mapping",
-    "sppm": "Photon Mapping",
-    "radiosity": "Finite Element Radiosity",
-}
+__all__ = ["LECTURE_ROWS", "CHART_COLUMNS", "QUICK", "DEFAULT", "BLOCK", "Knob", "spp_knob", "ChartRow",
+           "ChartResult", "ChartSettings", "register_knob", "chart_methods", "chart_knob", "chart_theory", "chart_lecture_row",
+           "lecture_chart_claim", "split_row", "row_name", "chart_target", "emitter_pixels", "measure_chart"]
 
 #: The lecture's chart: row -> (consistent?, unbiased?).
 LECTURE_ROWS = {
@@ -84,107 +74,10 @@ LECTURE_ROWS = {
     "Finite Element Radiosity": ("no", "no"),
 }
 
-#: The lecture's claim per chart method (consistent?, unbiased?), as on the slide; methods the
-#: slide does not name take ``Method.lecture`` of the integrator registry.
-LECTURE_CHART = {method: LECTURE_ROWS[row] for method, row in CHART_METHODS.items()}
-
-#: What theory says of each chart method, measured with its knob: (consistent, unbiased, why).
-#: ``why`` is the one-line reason shown where the measurement differs from the lecture.
-THEORY = {
-    "raster": ("no", "no", "one unshadowed bounce: no sample count brings back the missing shadows "
-                           "and interreflections"),
-    "path": ("yes", "yes", "with Russian roulette path tracing is unbiased (and so consistent), not "
-                           "'almost': every path length is kept, its probability divided out"),
-    "path_depth3": ("no", "no", "a fixed depth (3) drops the light of longer paths: biased, and the MSE "
-                                "levels off at that bias, so not consistent either"),
-    "light": ("yes", "yes", "light tracing is path tracing started at the lights: with Russian "
-                            "roulette unbiased and consistent"),
-    "bdpt": ("yes", "yes", "every (s, t) connection strategy weighted by MIS: unbiased and consistent"),
-    "pssmlt": ("yes", "no", "MLT's start-up bias: each chain starts from a bootstrap sample, not from "
-                            "its stationary distribution; the bias vanishes as the chains grow"),
-    "photon": ("no", "no", "at a fixed radius the density estimate keeps its blur whatever the photon "
-                           "count: photon mapping is consistent only progressively (sppm)"),
-    "sppm": ("yes", "no", "progressive photon mapping shrinks the radius: biased at every iteration, "
-                          "consistent"),
-    "radiosity": ("yes", "no", "radiosity's mesh: piecewise-constant patches bias the image; the bias "
-                               "falls only as the mesh is refined (its knob here), never with spp"),
-}
-
 #: The columns of ``chart.csv``, in order.
 CHART_COLUMNS = ("method", "lecture_consistent", "lecture_unbiased", "consistent", "unbiased",
                  "mse_x_time", "note")
 
-
-@dataclass(frozen=True)
-class Knob:
-    """A method's accuracy knob: what to render at level ``n``.
-
-    Parameters
-    ----------
-    counts : str
-        What a level counts (``'spp'``, ``'photons x 4096'``, ``'iterations'``,
-        ``'mesh refinement'``), shown in the chart's settings.
-    options : callable
-        ``options(level) -> dict`` of keyword arguments of
-        :func:`mcvar.integrators.render`: ``integrator``, ``spp`` and the
-        method's own options (``max_depth``, ``photons``, ``radius`` ...).
-        A module-level function or a :func:`functools.partial` of one, so
-        other processes can run it.
-    quick, default : tuple of int
-        Increasing levels of the quick (``--quick``) and the default chart.
-    """
-
-    counts: str
-    options: Callable
-    quick: tuple = (1, 4, 16, 64, 256)
-    default: tuple = (1, 4, 16, 64, 256)
-
-
-def _spp_options(integrator: str, level: int, **fixed) -> dict:
-    return dict(integrator=integrator, spp=level, **fixed)
-
-
-# The photon, sppm and radiosity settings follow branch photon's tuning of its registered methods
-# (options photons/radius, photons/radius/alpha, patch_size/rays_per_side/emitter_rays).
-def _photon_options(level: int) -> dict:
-    # more photons at a fixed gather radius: the blur stays
-    return dict(integrator="photon", spp=4, photons=2048 * level, radius=40.0)
-
-
-def _sppm_options(level: int) -> dict:
-    # one progressive run of `level` iterations (one batch: the radius keeps shrinking). 8192
-    # photons per iteration: with 2048 the block bias test saw SPPM's bias in only one of two
-    # seeds at the quick settings (10 replicates); 4x the photons quarter the photon noise and
-    # keep the first iteration's radius, so its blur stands out
-    return dict(integrator="sppm", spp=level, batch_spp=level, photons=8192, radius=40.0)
-
-
-def _radiosity_options(level: int) -> dict:
-    # patch size halves as the level quadruples; form-factor rays, emitter rays and pixel samples
-    # refined with it (at fixed spp the pixel-sampling noise would hide the shrinking mesh bias)
-    root = float(np.sqrt(level))
-    return dict(integrator="radiosity", spp=4 * level, patch_size=280.0 / root, rays_per_side=int(round(16 * root)),
-                emitter_rays=4096 * level)
-
-
-def spp_knob(integrator: str, **fixed) -> Knob:
-    """The default knob: ``level`` samples per pixel of ``integrator`` (with ``fixed`` options)."""
-    return Knob("spp", partial(_spp_options, integrator, **fixed))
-
-
-#: Built-in knobs of the chart methods. Extend with :func:`register_knob`.
-KNOBS: dict = {
-    "raster": spp_knob("raster"),
-    "path": spp_knob("path"),
-    "path_depth3": spp_knob("path", max_depth=3),
-    "light": spp_knob("light"),
-    "bdpt": spp_knob("bdpt"),
-    "pssmlt": spp_knob("pssmlt"),
-    "photon": Knob("photons (x 2048, radius 40)", _photon_options, (1, 4, 16), (1, 4, 16, 64)),
-    "sppm": Knob("iterations (8192 photons each)", _sppm_options, (1, 4, 16), (1, 4, 16, 64)),
-    "radiosity": Knob("mesh refinement (patch size 280 / sqrt(level))", _radiosity_options,
-                      (1, 4, 16), (1, 4, 16, 64)),
-}
 
 #: Side in pixels of the blocks of the chart's block bias test
 #: (:func:`~mcvar.experiments.analysis.block_bias_test`; docs/chart.md says why 4).
@@ -197,11 +90,13 @@ DEFAULT = dict(res=32, replicates=12, reference_spp=4096, reference_chunks=8)
 
 
 def register_knob(method: str, knob: Knob) -> Knob:
-    """Declare ``method``'s accuracy knob for the chart (replaces a built-in one).
+    """Set the chart knob of the registered ``method`` (its ``Method.knob``; a depth row
+    ``'path:3'`` sets its base method's). Prefer ``Method(..., knob=...)`` in the
+    method's registration; this replaces the record in the registry.
 
     Examples
     --------
-    >>> from mcvar.experiments.chart import Knob, register_knob, spp_knob
+    >>> from mcvar.experiments.chart import register_knob, spp_knob
     >>> register_knob("path", spp_knob("path"))                 # doctest: +ELLIPSIS
     Knob(counts='spp', ...)
     """
@@ -209,71 +104,135 @@ def register_knob(method: str, knob: Knob) -> Knob:
         raise TypeError(f"method must be a non-empty string; got {method!r}")
     if not isinstance(knob, Knob):
         raise TypeError(f"knob must be a Knob; got {type(knob).__name__}")
-    for name in ("quick", "default"):
-        levels = getattr(knob, name)
-        if len(levels) < 2 or list(levels) != sorted(set(levels)) or min(levels) < 1:
-            raise ValueError(f"knob.{name} must hold >= 2 increasing positive levels; got {levels!r}")
-    KNOBS[method] = knob
+    base, _ = split_row(method)
+    methods = _registry()
+    if base not in methods:
+        raise ValueError(f"method {base!r} is not registered: declare its knob in its Method(..., knob=...)")
+    methods[base] = methods[base].replace(knob=knob)
     return knob
 
 
-def _registry() -> tuple[dict, tuple]:
-    """(METHODS of the integrator registry or {}, names of every registered integrator)."""
-    import mcvar.integrators as integrators
+def _registry() -> dict:
+    """The live integrator registry (:data:`mcvar.integrators.METHODS`; importing the
+    package registers the built-in methods)."""
+    from .. import integrators
 
-    methods = dict(getattr(integrators, "METHODS", None) or {})
-    names = tuple(methods) if methods else tuple(integrators.INTEGRATORS)
-    return methods, names
-
-
-def _base(method: str) -> str:
-    return _spp_integrator(KNOBS[method]) if method in KNOBS else method
+    return integrators.METHODS
 
 
-def _spp_integrator(knob: Knob) -> str:
-    return knob.options(1)["integrator"]
+def split_row(name: str) -> tuple[str, int | None]:
+    """A chart row's ``(method, fixed depth or None)``: ``'path'`` -> ``('path', None)``,
+    ``'path:3'`` -> ``('path', 3)``; the alias ``'path_depth3'`` is ``'path:3'``
+    (:func:`~mcvar.experiments.targets.parse_method`). A registered method's own name,
+    whatever its spelling, is ``(name, None)``; anything else unparsable is a ValueError."""
+    if isinstance(name, str) and name in _registry():
+        return name, None
+    return parse_method(name)
+
+
+def row_name(name: str) -> str:
+    """The canonical spelling of a chart row (``'path_depth3'`` -> ``'path:3'``)."""
+    base, depth = split_row(name)
+    return base if depth is None else f"{base}:{depth}"
 
 
 def chart_methods() -> tuple:
-    """The chart's rows: :data:`CHART_METHODS` whose integrator is registered, in
-    the lecture's order, then any other registered method with a chart knob
-    (:func:`register_knob`) and a lecture claim (``Method.lecture``)."""
-    registry, names = _registry()
-    rows = [m for m in CHART_METHODS if _base(m) in names]
-    rows += [name for name, m in registry.items() if name not in rows and name in KNOBS
+    """The chart's rows: every registered method with a ``chart_row``, in the order of the
+    lecture's rows (:data:`LECTURE_ROWS`; registration order within a row), each followed
+    by its fixed-depth rows ``'name:depth'`` (``Method.chart_depths``), then any other
+    registered method with both a chart ``knob`` and a ``lecture`` claim."""
+    order = {row: i for i, row in enumerate(LECTURE_ROWS)}
+    methods = list(_registry().values())
+    charted = sorted((m for m in methods if getattr(m, "chart_row", None)),
+                     key=lambda m: order.get(m.chart_row, len(order)))
+    rows = []
+    for m in charted:
+        rows += [m.name] + [f"{m.name}:{d}" for d in getattr(m, "chart_depths", {})]
+    rows += [m.name for m in methods if m.name not in rows and getattr(m, "knob", None) is not None
              and getattr(m, "lecture", None) is not None]
     return tuple(rows)
 
 
+def _record(name: str):
+    base, depth = split_row(name)
+    method = _registry().get(base)
+    if method is None:
+        raise ValueError(f"method {base!r} is not a registered integrator")
+    return method, depth
+
+
+def chart_lecture_row(method: str) -> str:
+    """The lecture's chart row a chart method answers (``Method.chart_row``; else its name)."""
+    record, _ = _record(method)
+    return getattr(record, "chart_row", None) or row_name(method)
+
+
 def lecture_chart_claim(method: str) -> tuple[str, str]:
-    """The lecture's ``(consistent, unbiased)`` for a chart method: the slide's
-    (:data:`LECTURE_CHART`), else ``Method.lecture`` of the integrator registry."""
-    if method in LECTURE_CHART:
-        return LECTURE_CHART[method]
-    registry, _ = _registry()
-    claim = getattr(registry.get(method), "lecture", None)
+    """The lecture's ``(consistent, unbiased)`` for a chart method: the slide's row
+    (:data:`LECTURE_ROWS` of its ``Method.chart_row``; a depth row takes its method's),
+    else ``Method.lecture`` of the integrator registry."""
+    try:
+        record, _ = _record(method)
+    except (TypeError, ValueError):
+        record = None
+    row = getattr(record, "chart_row", None)
+    if row in LECTURE_ROWS:
+        return LECTURE_ROWS[row]
+    claim = getattr(record, "lecture", None)
     if claim is not None:
         return tuple(str(c) for c in claim)
-    raise ValueError(f"method {method!r} has no lecture claim (not in LECTURE_CHART, no Method.lecture)")
+    raise ValueError(f"method {method!r} has no lecture claim (no Method.chart_row on the slide, "
+                     "no Method.lecture)")
+
+
+def chart_theory(method: str):
+    """What theory says of a chart method, ``(consistent, unbiased, why)``, or None:
+    ``Method.theory``, or for a depth row ``'path:3'`` ``Method.chart_depths[3]``."""
+    record, depth = _record(method)
+    if depth is None:
+        return getattr(record, "theory", None)
+    return getattr(record, "chart_depths", {}).get(depth)
+
+
+def chart_knob(method: str) -> Knob:
+    """A chart method's knob: ``Method.knob`` (else spp), with ``max_depth`` for a depth row."""
+    record, depth = _record(method)
+    knob = getattr(record, "knob", None) or spp_knob(record.name)
+    return knob if depth is None else depth_knob(knob, depth)
+
+
+def __getattr__(name):
+    """``KNOBS``, ``THEORY``, ``CHART_METHODS`` and ``LECTURE_CHART``: the former tables, now
+    read-only snapshots of the registry (each method's record holds its own)."""
+    views = {"KNOBS": chart_knob, "THEORY": chart_theory, "CHART_METHODS": chart_lecture_row,
+             "LECTURE_CHART": lecture_chart_claim}
+    if name in views:
+        warnings.warn(f"mcvar.experiments.chart.{name} is a snapshot of the integrator registry: "
+                      "read Method.knob / theory / chart_row, or chart_knob() etc.", DeprecationWarning,
+                      stacklevel=2)
+        return MappingProxyType({m: views[name](m) for m in chart_methods()})
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _knob_for(method: str) -> tuple[Knob, str]:
     """The method's knob, or spp when its declared options are not accepted by the registered method."""
-    knob = KNOBS.get(method) or spp_knob(method)
-    registry, _ = _registry()
+    knob = chart_knob(method)
     options = dict(knob.options(knob.quick[0]))
-    entry = registry.get(options["integrator"])
+    entry = _registry().get(options["integrator"])
     accepted = set(getattr(entry, "options", {}) or {})
     own = set(options) - {"integrator", "spp", "batch_spp", "max_depth", "sampler", "heuristic"}
     missing = sorted(own - accepted) if entry is not None else []
     if not missing:
         return knob, ""
     fallback = spp_knob(options["integrator"])
+    depth = split_row(method)[1]
+    if depth is not None:
+        fallback = depth_knob(fallback, depth)
     return (Knob("spp", fallback.options, knob.quick, knob.default),
             f"knob options {missing} not accepted by the registered method: measured in spp")
 
 
-def emitter_pixels(scene: str = "cornell", res: int = 16, *, subpixels: int = 8,
+def emitter_pixels(scene="cornell", res: int = 16, *, subpixels: int = 8,
                    refine: int = 256) -> np.ndarray:
     """Pixels that see an emitter directly, shape ``(res, res)`` bool.
 
@@ -321,7 +280,7 @@ def emitter_pixels(scene: str = "cornell", res: int = 16, *, subpixels: int = 8,
     return flagged
 
 
-def _chart_evaluate(scene: str, res: int, knobs: dict, method: str, sampler: str, level: int, rng):
+def _chart_evaluate(scene, res: int, knobs: dict, method: str, sampler: str, level: int, rng):
     from ..integrators import render
 
     options = dict(knobs[method].options(level))
@@ -329,7 +288,7 @@ def _chart_evaluate(scene: str, res: int, knobs: dict, method: str, sampler: str
     return np.asarray(result.image, dtype=np.float64)
 
 
-def _chart_reference(scene: str, res: int, spp: int, rng):
+def _chart_reference(scene, res: int, spp: int, rng):
     from ..integrators import render
 
     result = render(_scene(scene), integrator="path", spp=spp, res=res, sampler="random", rng=rng,
@@ -337,7 +296,7 @@ def _chart_reference(scene: str, res: int, spp: int, rng):
     return np.asarray(result.image, dtype=np.float64)
 
 
-def chart_target(scene: str = "cornell", *, res: int = 16, reference_spp: int = 1024,
+def chart_target(scene="cornell", *, res: int = 16, reference_spp: int = 1024,
                  reference_chunks: int = 8, knobs: dict | None = None) -> Target:
     """The chart's :class:`~mcvar.experiments.targets.Target`: ``scene`` rendered by a
     chart method at a level of its knob (the sweep's ``spp`` is the level).
@@ -348,15 +307,16 @@ def chart_target(scene: str = "cornell", *, res: int = 16, reference_spp: int = 
     """
     res = check_count(res, "res")
     reference_spp, reference_chunks = _check_reference_settings(reference_spp, reference_chunks)
-    _scene(scene)
+    loaded = _scene(scene)          # the target owns the loaded scene
+    scene = loaded.name if not isinstance(scene, str) else scene
     knobs = dict(knobs if knobs is not None else {m: _knob_for(m)[0] for m in chart_methods()})
     # each knob's options at levels 1 and 4 describe it in the cache key
     described = ";".join(f"{m}={k.counts}:{sorted(k.options(1).items())}:{sorted(k.options(4).items())}"
                          for m, k in sorted(knobs.items()))
-    return Target(name=f"{scene} chart", evaluate=partial(_chart_evaluate, scene, res, knobs),
+    return Target(name=f"{scene} chart", evaluate=partial(_chart_evaluate, loaded, res, knobs),
                   key=f"chart;scene={scene};res={res};{described}", methods=tuple(knobs),
                   samplers=("random",), spp=(1, 4, 16, 64),
-                  reference_task=partial(_chart_reference, scene, res, reference_spp),
+                  reference_task=partial(_chart_reference, loaded, res, reference_spp),
                   reference_chunks=reference_chunks,
                   reference_settings=f"integrator=path;spp={reference_spp};sampler=random;res={res}")
 
@@ -409,7 +369,7 @@ def _note(method: str, measured: tuple, lecture: tuple, fallback: str) -> str:
     extra = f" ({fallback})" if fallback else ""
     if measured == lecture:
         return fallback
-    theory = THEORY.get(method)
+    theory = chart_theory(method)
     if theory is None:
         return "measured differs from the lecture's claim (see the evidence)" + extra
     if measured == theory[:2]:
@@ -424,15 +384,45 @@ def _note(method: str, measured: tuple, lecture: tuple, fallback: str) -> str:
             + " and ".join(parts) + " (more replicates or levels give the tests more power)" + extra)
 
 
-def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
-                  replicates: int | None = None, levels=None, seed: int = 0, alpha: float = 1e-3,
-                  workers: int | None = None, cache_dir=None, progress: bool = True,
-                  reference_spp: int | None = None, reference_chunks: int | None = None,
-                  scene: str = "cornell") -> ChartResult:
+def _canonical_rows(methods) -> list:
+    out = []
+    for m in methods:
+        try:
+            out.append(row_name(m))
+        except (TypeError, ValueError):
+            out.append(m)
+    return out
+
+
+@dataclass(frozen=True)
+class ChartSettings:
+    """What :func:`measure_chart` measures (its keywords; see there)."""
+
+    quick: bool = False
+    methods: tuple | None = None
+    res: int | None = None
+    replicates: int | None = None
+    levels: tuple | None = None
+    rng: int | None = None
+    alpha: float = 1e-3
+    workers: int | None = None
+    progress: bool = True
+    reference_spp: int | None = None
+    reference_chunks: int | None = None
+    scene: str = "cornell"
+
+
+def measure_chart(settings: ChartSettings | None = None, *, cache_dir=None, **options) -> ChartResult:
     """Measure the lecture's chart for every registered method.
 
     Parameters
     ----------
+    settings : ChartSettings, optional
+        The keywords below are its fields and replace them (any other keyword
+        is a ``TypeError``).
+
+    Other Parameters
+    ----------------
     quick : bool
         :data:`QUICK` settings and each knob's quick levels (``mcvar chart
         --quick``), else :data:`DEFAULT` and the default levels.
@@ -444,8 +434,9 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
         Override the mode's settings.
     levels : sequence of int, optional
         The same levels for every method instead of each knob's.
-    seed, alpha, workers, cache_dir, progress
-        As in :func:`~mcvar.experiments.sweeps.sweep`. One executor serves
+    rng, alpha, workers, cache_dir, progress
+        As in :func:`~mcvar.experiments.sweeps.sweep` (``seed=`` is the
+        deprecated alias of ``rng``). One executor serves
         the reference and every method's sweep; ``cache_dir`` caches both, so
         a second call only computes what is missing.
     scene : str
@@ -475,6 +466,14 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     .. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
        Simulation", PhD thesis, Stanford University, 1997, sec. 1.4.4, 2.4.3.
     """
+    opts = settings_with(ChartSettings, settings, seed_alias(options, "measure_chart"), "measure_chart")
+    quick, methods, levels, alpha, workers, progress = (opts.quick, opts.methods, opts.levels, opts.alpha,
+                                                         opts.workers, opts.progress)
+    seed, scene = root_seed(opts.rng, where="measure_chart"), opts.scene
+    res, replicates, reference_spp, reference_chunks = (opts.res, opts.replicates, opts.reference_spp,
+                                                        opts.reference_chunks)
+    check_bool(quick, "quick")
+    check_bool(progress, "progress")
     settings = dict(QUICK if quick else DEFAULT)
     for name, value in (("res", res), ("replicates", replicates), ("reference_spp", reference_spp),
                         ("reference_chunks", reference_chunks)):
@@ -486,15 +485,11 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     else:
         if isinstance(methods, str):
             methods = [methods]
-        methods = tuple(dict.fromkeys(methods))
-        known = tuple(CHART_METHODS) + tuple(m for m in available if m not in CHART_METHODS)
-        unknown = [m for m in methods if m not in known]
+        methods = tuple(dict.fromkeys(_canonical_rows(methods)))
+        unknown = [m for m in methods if m not in available]
         if unknown:
-            raise ValueError(f"methods must be chart methods {known}; got unknown {unknown}")
-        missing = [m for m in methods if m not in available]
-        if missing:
-            raise ValueError(f"methods {missing} are not registered integrators (registered chart "
-                             f"methods: {available})")
+            raise ValueError(f"methods must be chart methods {available} (a method declares its chart row "
+                             f"in its registration, Method.chart_row); got unknown {unknown}")
     if not methods:
         raise ValueError("methods: no chart method is registered")
     if workers is not None:
@@ -509,23 +504,24 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
     start = time.perf_counter()
     # one target per method, its key naming that method's knob only, and the reference's
     # target naming none: cached runs and the reference do not depend on which methods run
-    targets = {m: chart_target(scene, res=settings["res"], reference_spp=settings["reference_spp"],
+    loaded = _scene(scene)      # one Scene for every target of this chart
+    targets = {m: chart_target(loaded, res=settings["res"], reference_spp=settings["reference_spp"],
                                reference_chunks=settings["reference_chunks"],
                                knobs={m: knobs[m]} if m else {})
                for m in (None, *methods)}
     n_workers = workers or os.cpu_count() or 1
     executor = SerialExecutor() if n_workers == 1 else ProcessPoolExecutor(max_workers=n_workers)
     try:
-        reference = compute_reference(targets[None], seed=seed, executor=executor, cache_dir=cache_dir,
+        reference = compute_reference(targets[None], rng=seed, executor=executor, cache_dir=cache_dir,
                                       progress=progress)
-        mask = ~emitter_pixels(scene, settings["res"])
+        mask = ~emitter_pixels(loaded, settings["res"])
         sweeps, rows = {}, []
         for m in methods:
             knob = knobs[m]
             mlevels = levels or (knob.quick if quick else knob.default)
             t0 = time.perf_counter()
             result = sweep(targets[m], methods=[m], samplers=["random"], spp=mlevels,
-                           replicates=settings["replicates"], seed=seed, reference=reference,
+                           replicates=settings["replicates"], rng=seed, reference=reference,
                            executor=executor, cache_dir=cache_dir, alpha=alpha, progress=progress)
             sweeps[m] = result
             verdict = result.verdicts[m]
@@ -536,7 +532,7 @@ def measure_chart(*, quick: bool = False, methods=None, res: int | None = None,
                 {n: result.values[(m, "random", n)] for n in result.spp}, result.metrics, reference,
                 alpha=alpha, block=BLOCK, mask=mask)
             measured = ("yes" if verdict.consistent else "no", "yes" if unbiased else "no")
-            rows.append(ChartRow(method=m, lecture_row=CHART_METHODS.get(m, m), lecture_consistent=lecture[0],
+            rows.append(ChartRow(method=m, lecture_row=chart_lecture_row(m), lecture_consistent=lecture[0],
                                  lecture_unbiased=lecture[1], consistent=measured[0], unbiased=measured[1],
                                  mse_x_time=float(last.figure_of_merit),
                                  note=_note(m, measured, lecture, fallbacks[m]), knob=knob.counts,

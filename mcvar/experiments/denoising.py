@@ -29,7 +29,7 @@ References
 from __future__ import annotations
 
 from dataclasses import replace
-from functools import lru_cache, partial
+from functools import partial
 
 import numpy as np
 
@@ -118,21 +118,20 @@ def denoised_target(target: Target, *, weight_1: float = WEIGHT_1, power: float 
                    methods=base + tuple(m + DENOISE_SUFFIX for m in base))
 
 
-def _photo_evaluate(name: str, res: int, method: str, sampler: str, spp: int, rng) -> np.ndarray:
+def _photo_evaluate(truth: np.ndarray, method: str, sampler: str, spp: int, rng) -> np.ndarray:
     if method != "mc":
         raise ValueError(f"method must be 'mc' (or 'mc+tv' through denoised_target); got {method!r}")
-    truth = _photo(name, res)
     # Gamma(spp, 1/spp) has mean 1 and variance 1/spp: an unbiased, non-negative
     # estimate of each pixel whose noise falls like plain Monte Carlo's (at 1 spp
     # an exponential, as heavy-tailed as a one-sample render).
     return truth * rng.gamma(spp, 1.0 / spp, size=truth.shape)
 
 
-@lru_cache(maxsize=8)
 def _photo(name: str, res: int) -> np.ndarray:
-    # Cached: every run of a sweep estimates the same image, and loading and
-    # downscaling it (an anti-aliasing Gaussian over 512 x 512) costs ~50 ms,
-    # 20x the noise and the denoiser. Read-only, so the cached copy stays exact.
+    # Loaded once per target (photo_target keeps it in its evaluate): every run of a
+    # sweep estimates the same image, and loading and downscaling it (an
+    # anti-aliasing Gaussian over 512 x 512) costs ~50 ms, 20x the noise and the
+    # denoiser. Read-only, so the target's copy stays exact.
     from skimage import data
     from skimage.transform import resize
 
@@ -165,6 +164,7 @@ def photo_target(name: str = "astronaut", *, res: int = 32) -> Target:
     res = check_count(res, "res")
     if res < 8:
         raise ValueError(f"res must be >= 8; got {res}")
-    return Target(name=f"{name} (skimage.data)", evaluate=partial(_photo_evaluate, name, res),
+    truth = _photo(name, res)          # the target owns the loaded image
+    return Target(name=f"{name} (skimage.data)", evaluate=partial(_photo_evaluate, truth),
                   key=f"photo={name};res={res}", methods=("mc",), samplers=("random",),
-                  spp=(1, 4, 16, 64, 256), exact=_photo(name, res).copy())
+                  spp=(1, 4, 16, 64, 256), exact=truth.copy())

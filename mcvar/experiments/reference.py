@@ -11,7 +11,7 @@ import numpy as np
 
 from .._validation import as_array, check_count
 from .targets import Target
-from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _h32, _map, _run
+from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _h32, _map, _run, root_seed
 
 
 # --------------------------------------------------------------------------
@@ -62,8 +62,8 @@ def _reference_from_file(path: Path) -> Reference:
     raise ValueError(f"reference must be a .npy image or an .npz with 'value' (and 'variance'); got {path}")
 
 
-def compute_reference(target: Target, *, seed: int = 0, executor: Executor | None = None,
-                      cache_dir=None, path=None, progress: bool = False) -> Reference:
+def compute_reference(target: Target, *, rng: int | None = None, executor: Executor | None = None,
+                      cache_dir=None, path=None, progress: bool = False, seed=None) -> Reference:
     """The reference for ``target``: exact, loaded from ``path``, or rendered.
 
     A rendered reference averages ``target.reference_chunks`` chunks, each
@@ -73,11 +73,15 @@ def compute_reference(target: Target, *, seed: int = 0, executor: Executor | Non
 
     Parameters
     ----------
+    rng : int, optional
+        Root seed (an integer >= 0, default 0; the cache is keyed by it).
+        ``seed=`` is its deprecated alias.
     path : str or Path, optional
         A user-supplied reference: ``.npy`` (an image; its variance is taken
         as 0) or ``.npz`` with ``value`` and optionally ``variance``,
         ``mean_variance``, ``chunks``.
     """
+    seed = root_seed(rng, seed, where="compute_reference")
     if path is not None:
         return _reference_from_file(Path(path))
     if target.exact is not None:

@@ -29,15 +29,40 @@ def _digest(*parts) -> str:
     return hashlib.sha256("|".join(map(str, parts)).encode()).hexdigest()[:24]
 
 
-def run_seed(seed: int, target_key: str, method: str, sampler: str, spp: int, replicates: int):
+def root_seed(rng=None, seed=None, *, where: str = "") -> int:
+    """The integer root seed of a cached experiment.
+
+    ``rng`` is an integer >= 0 (None: 0), not a Generator: finished runs and
+    references are cached on disk by it, and every stream is spawned from it
+    by configuration (:func:`run_seed`). ``seed`` is the deprecated former
+    name of ``rng`` (a ``DeprecationWarning``; both at once is a ``TypeError``).
+    """
+    if seed is not None:
+        if rng is not None:
+            raise TypeError(f"{where or 'this function'} got both rng= and its deprecated alias seed=; "
+                            "pass rng= only")
+        import warnings
+
+        warnings.warn(f"{where or 'this function'}(seed=...) is deprecated: pass rng= (the same integer)",
+                      DeprecationWarning, stacklevel=3)
+        rng = seed
+    if rng is None:
+        return 0
+    if isinstance(rng, (np.random.Generator, np.random.SeedSequence, np.random.BitGenerator)):
+        raise TypeError(f"rng must be an integer seed >= 0 here (runs and references are cached by it); "
+                        f"got {type(rng).__name__}")
+    return check_count(rng, "rng", allow_zero=True)
+
+
+def run_seed(rng: int, target_key: str, method: str, sampler: str, spp: int, replicates: int):
     """The ``replicates`` independent streams of one configuration.
 
-    ``SeedSequence(seed, spawn_key=(h(target), h(method), h(sampler), spp))``
+    ``SeedSequence(rng, spawn_key=(h(target), h(method), h(sampler), spp))``
     spawned ``replicates`` times, with ``h`` the first 32 bits of SHA-256: the
     streams depend only on the seed and the configuration, never on the order
     in which runs execute, and distinct configurations get distinct streams.
     """
-    seed = check_count(seed, "seed", allow_zero=True)
+    seed = root_seed(rng, where="run_seed")
     root = np.random.SeedSequence(seed, spawn_key=(_h32(target_key), _h32(method),
                                                   _h32(sampler), int(spp)))
     return root.spawn(check_count(replicates, "replicates"))

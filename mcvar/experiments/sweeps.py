@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_count, check_probability
-from .targets import make_target
-from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, run_seed
+from .._validation import check_bool, check_count, check_probability, seed_alias, settings_with
+from .targets import make_target, parse_method
+from .runs import CACHE_VERSION, SerialExecutor, _atomic_save, _digest, _map, _run, root_seed, run_seed
 from .reference import Reference, compute_reference
 from .denoising import DENOISE_SUFFIX, denoised_target
 from .analysis import ConfigMetrics, _config_metrics, _fits, _image_quality, _verdicts, _with_detection
@@ -93,10 +93,185 @@ def _as_names(names, what: str) -> tuple:
     return tuple(dict.fromkeys(names))
 
 
-def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8, seed: int = 0,
-          reference=None, executor: Executor | None = None, workers: int | None = None,
-          cache_dir=None, res: int = 32, alpha: float = 1e-3, progress: bool = True,
-          image_metrics: bool = False) -> SweepResult:
+@dataclass(frozen=True)
+class SweepSettings:
+    """What a sweep runs and how it tests it (the keywords of :func:`sweep`).
+
+    Attributes
+    ----------
+    methods, samplers, spp : sequence, optional
+        Defaults: the target's (``spp`` sorted, duplicates dropped).
+    replicates : int
+        Independent runs per configuration, >= 3 (the jackknife needs 3).
+    rng : int
+        Root seed of every stream (:func:`run_seed`): an integer >= 0, since
+        finished runs are cached by it.
+    res : int
+        Resolution of scene targets given by name.
+    alpha : float
+        Family-wise significance of the bias tests of one method.
+    image_metrics : bool
+        Also measure PSNR and SSIM of every image replicate.
+    workers : int or None
+        Processes of the sweep's own pool (all cores when None; 1: in this
+        process) when no executor is given.
+    progress : bool
+        One tqdm bar for the whole sweep.
+    """
+
+    methods: tuple | None = None
+    samplers: tuple | None = None
+    spp: tuple | None = None
+    replicates: int = 8
+    rng: int = 0
+    res: int = 32
+    alpha: float = 1e-3
+    image_metrics: bool = False
+    workers: int | None = None
+    progress: bool = True
+
+
+@dataclass(frozen=True)
+class _Plan:
+    target: object
+    methods: tuple
+    samplers: tuple
+    levels: tuple
+    replicates: int
+    seed: int
+    alpha: float
+
+    @property
+    def configs(self) -> list:
+        return [(m, s, n) for m in self.methods for s in self.samplers for n in self.levels]
+
+
+def _plan(target, settings: SweepSettings) -> _Plan:
+    """The sweep's target and configurations, every setting checked before any work."""
+    target = make_target(target, res=settings.res)
+    methods = settings.methods
+    if methods is not None and any(str(m).endswith(DENOISE_SUFFIX) for m in
+                                   ([methods] if isinstance(methods, str) else methods)):
+        target = denoised_target(target)
+    methods = _as_names(methods if methods is not None else target.methods, "methods")
+    _check_methods(target, methods)
+    check_bool(settings.progress, "progress")
+    check_bool(settings.image_metrics, "image_metrics")
+    samplers = _as_names(settings.samplers if settings.samplers is not None else target.samplers, "samplers")
+    levels = _as_levels(settings.spp if settings.spp is not None else target.spp)
+    replicates = check_count(settings.replicates, "replicates")
+    if replicates < 3:
+        raise ValueError(f"replicates must be >= 3 (variance and its jackknife error); got {replicates}")
+    seed = root_seed(settings.rng)
+    alpha = check_probability(settings.alpha, "alpha")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
+    return _Plan(target, methods, samplers, levels, replicates, seed, alpha)
+
+
+def _executor(executor, workers):
+    """(executor, owned by the sweep?, submission window)."""
+    if workers is not None:
+        workers = check_count(workers, "workers")
+    if executor is not None and not isinstance(executor, Executor):
+        raise TypeError(f"executor must be a concurrent.futures.Executor; got {type(executor).__name__}")
+    if executor is not None:
+        return executor, False, 1 << 30
+    n_workers = workers or os.cpu_count() or 1
+    return (SerialExecutor() if n_workers == 1 else ProcessPoolExecutor(max_workers=n_workers)), True, 2 * n_workers
+
+
+def _runs(plan: _Plan, executor, window: int, cache, progress: bool):
+    """Every replicate of every configuration: loaded from ``cache`` or computed.
+    Returns ``(values, seconds, computed, cached)``."""
+    target = plan.target
+    values: dict = {}
+    secs: dict = {}
+    jobs, where = [], []
+    cached = 0
+    for m, s, n in plan.configs:
+        values[(m, s, n)] = [None] * plan.replicates
+        secs[(m, s, n)] = np.zeros(plan.replicates)
+        for r, stream in enumerate(run_seed(plan.seed, target.key, m, s, n, plan.replicates)):
+            path = None
+            if cache is not None:
+                path = cache / "runs" / f"{_digest(CACHE_VERSION, target.key, m, s, n, r, plan.seed)}.npz"
+                if path.is_file():
+                    with np.load(path) as data:
+                        values[(m, s, n)][r] = data["value"]
+                        secs[(m, s, n)][r] = float(data["seconds"])
+                    cached += 1
+                    continue
+            jobs.append((target.evaluate, m, s, n, stream))
+            where.append(((m, s, n), r, path))
+
+    def keep(i, result):
+        key, r, path = where[i]
+        value, seconds = result
+        if value.size == 0 or not np.all(np.isfinite(value)):
+            raise ValueError(f"target {target.name!r} returned a non-finite or empty estimate for "
+                             f"{key} replicate {r}")
+        values[key][r] = value
+        secs[key][r] = seconds
+        if path is not None:
+            _atomic_save(path, value=value, seconds=seconds)
+
+    from tqdm.auto import tqdm
+
+    total = len(plan.configs) * plan.replicates
+    with tqdm(total=total, initial=cached, desc=f"{target.name} sweep", disable=not progress,
+              unit="run") as bar:
+        _map(executor, _run, jobs, window=window, on_done=keep, progress_bar=bar)
+    return values, secs, len(jobs), cached
+
+
+def _measure(plan: _Plan, values: dict, secs: dict, ref, image_metrics: bool, counts: tuple) -> "SweepResult":
+    """Metrics, fits and verdicts of the finished runs."""
+    stacked = {k: np.stack(v) for k, v in values.items()}
+    for k, v in stacked.items():
+        if v.shape[1:] != ref.value.shape:
+            raise ValueError(f"estimates of {k} have shape {v.shape[1:]} but the reference has "
+                             f"{ref.value.shape}")
+    metrics = [_config_metrics(m, s, n, stacked[(m, s, n)], secs[(m, s, n)], ref) for m, s, n in plan.configs]
+    per_method = len(plan.samplers) * len(plan.levels)
+    alpha_family = 1.0 - (1.0 - plan.alpha) ** (1.0 / per_method)
+    metrics = tuple(_with_detection(m, alpha_family) for m in metrics)
+    if image_metrics and ref.value.ndim == 3:
+        metrics = tuple(replace(m, **dict(zip(("psnr", "ssim"), _image_quality(
+            stacked[(m.method, m.sampler, m.spp)], ref.value)))) for m in metrics)
+    fits = {}
+    for m in plan.methods:
+        for s in plan.samplers:
+            rows = [x for x in metrics if x.method == m and x.sampler == s]
+            fits[(m, s)] = _fits(m, s, rows, plan.alpha)
+    verdicts = _verdicts(plan.methods, metrics, fits, alpha_family)
+    return SweepResult(plan.target.name, plan.methods, plan.samplers, plan.levels, plan.replicates, plan.seed,
+                       ref, metrics, fits, verdicts, stacked, secs, computed=counts[0], cached=counts[1],
+                       alpha=plan.alpha, alpha_family=alpha_family)
+
+
+def _check_methods(target, methods) -> None:
+    """Every method name is one the target can run (a ValueError naming the
+    unknown ones and the known ones, before any run): an integrand's own
+    methods, a scene's registered integrators (``'integrator[:max_depth]'``,
+    optionally denoised); a user target's names are its own business."""
+    plain = [m[:-len(DENOISE_SUFFIX)] if m.endswith(DENOISE_SUFFIX) else m for m in methods]
+    if target.key.startswith("integrand="):
+        unknown = [m for m, p in zip(methods, plain) if p not in target.methods]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not methods of the integrand {target.name!r}; "
+                             f"it has {tuple(target.methods)}")
+    elif target.key.startswith("scene="):
+        from ..integrators import METHODS
+
+        unknown = [m for m, p in zip(methods, plain) if parse_method(p)[0] not in METHODS]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not registered integrators; methods are "
+                             f"'integrator[:max_depth]' with integrator one of {tuple(METHODS)}")
+
+
+def sweep(target, settings: SweepSettings | None = None, *, reference=None, executor: Executor | None = None,
+          cache_dir=None, **options) -> SweepResult:
     """Run ``target`` for every method x sampler x spp level x replicate and measure it.
 
     Parameters
@@ -104,15 +279,11 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
     target : Target or str
         A :class:`Target`, or a name for :func:`make_target` (an integrand of
         ``mcvar.examples.PROBLEMS`` or a scene).
-    methods, samplers : sequence of str, optional
-        Defaults: the target's.
-    spp : sequence of int, optional
-        Samples (per pixel) levels; sorted, duplicates dropped. Default: the
-        target's.
-    replicates : int
-        Independent runs per configuration, >= 3 (the jackknife needs 3).
-    seed : int
-        Root of every stream (:func:`run_seed`).
+    settings : SweepSettings, optional
+        What to run; the keywords ``methods``, ``samplers``, ``spp``,
+        ``replicates``, ``rng``, ``res``, ``alpha``, ``image_metrics``,
+        ``workers`` and ``progress`` (its fields, documented there and
+        below) replace its fields. Any other keyword is a ``TypeError``.
     reference : Reference, str or Path, optional
         The comparison value; default :func:`compute_reference` (exact, or
         rendered and cached in ``cache_dir``).
@@ -124,6 +295,19 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
     cache_dir : str or Path, optional
         Folder for finished runs and references; runs found there are not
         recomputed (an interrupted sweep resumes). None: no disk cache.
+
+    Other Parameters
+    ----------------
+    methods, samplers : sequence of str, optional
+        Defaults: the target's.
+    spp : sequence of int, optional
+        Samples (per pixel) levels; sorted, duplicates dropped. Default: the
+        target's.
+    replicates : int
+        Independent runs per configuration, >= 3 (the jackknife needs 3).
+    rng : int
+        Root seed of every stream (:func:`run_seed`), >= 0 (runs are cached
+        by it). ``seed=`` is its deprecated alias.
     res : int
         Resolution of scene targets given by name.
     alpha : float
@@ -181,100 +365,19 @@ def sweep(target, *, methods=None, samplers=None, spp=None, replicates: int = 8,
     .. [3] B. Efron, C. Stein, "The jackknife estimate of variance", Annals of
        Statistics 9(3), 1981.
     """
-    target = make_target(target, res=res)
-    if methods is not None and any(str(m).endswith(DENOISE_SUFFIX) for m in
-                                   ([methods] if isinstance(methods, str) else methods)):
-        target = denoised_target(target)
-    methods = _as_names(methods if methods is not None else target.methods, "methods")
-    samplers = _as_names(samplers if samplers is not None else target.samplers, "samplers")
-    levels = _as_levels(spp if spp is not None else target.spp)
-    replicates = check_count(replicates, "replicates")
-    if replicates < 3:
-        raise ValueError(f"replicates must be >= 3 (variance and its jackknife error); got {replicates}")
-    seed = check_count(seed, "seed", allow_zero=True)
-    alpha = check_probability(alpha, "alpha")
-    if not 0 < alpha < 1:
-        raise ValueError(f"alpha must lie in (0, 1); got {alpha}")
-    if workers is not None:
-        workers = check_count(workers, "workers")
-    if executor is not None and not isinstance(executor, Executor):
-        raise TypeError(f"executor must be a concurrent.futures.Executor; got {type(executor).__name__}")
+    settings = settings_with(SweepSettings, settings, seed_alias(options, "sweep"), "sweep")
+    plan = _plan(target, settings)
+    executor, own, window = _executor(executor, settings.workers)
+    progress = settings.progress
     cache = Path(cache_dir) if cache_dir is not None else None
-
-    own = executor is None
-    if own:
-        n_workers = workers or os.cpu_count() or 1
-        executor = SerialExecutor() if n_workers == 1 else ProcessPoolExecutor(max_workers=n_workers)
-        window = 2 * n_workers
-    else:
-        window = 1 << 30
     try:
         if isinstance(reference, Reference):
             ref = reference
         else:
-            ref = compute_reference(target, seed=seed, executor=executor, cache_dir=cache,
+            ref = compute_reference(plan.target, rng=plan.seed, executor=executor, cache_dir=cache,
                                     path=reference, progress=progress)
-        configs = [(m, s, n) for m in methods for s in samplers for n in levels]
-        values: dict = {}
-        secs: dict = {}
-        jobs, where = [], []
-        cached = 0
-        for m, s, n in configs:
-            streams = run_seed(seed, target.key, m, s, n, replicates)
-            values[(m, s, n)] = [None] * replicates
-            secs[(m, s, n)] = np.zeros(replicates)
-            for r, stream in enumerate(streams):
-                path = None
-                if cache is not None:
-                    path = cache / "runs" / f"{_digest(CACHE_VERSION, target.key, m, s, n, r, seed)}.npz"
-                    if path.is_file():
-                        with np.load(path) as data:
-                            values[(m, s, n)][r] = data["value"]
-                            secs[(m, s, n)][r] = float(data["seconds"])
-                        cached += 1
-                        continue
-                jobs.append((target.evaluate, m, s, n, stream))
-                where.append(((m, s, n), r, path))
-
-        def keep(i, result):
-            key, r, path = where[i]
-            value, seconds = result
-            if value.size == 0 or not np.all(np.isfinite(value)):
-                raise ValueError(f"target {target.name!r} returned a non-finite or empty estimate for "
-                                 f"{key} replicate {r}")
-            values[key][r] = value
-            secs[key][r] = seconds
-            if path is not None:
-                _atomic_save(path, value=value, seconds=seconds)
-
-        from tqdm.auto import tqdm
-
-        total = len(configs) * replicates
-        with tqdm(total=total, initial=cached, desc=f"{target.name} sweep", disable=not progress,
-                  unit="run") as bar:
-            _map(executor, _run, jobs, window=window, on_done=keep, progress_bar=bar)
+        values, secs, computed, cached = _runs(plan, executor, window, cache, progress)
     finally:
         if own:
             executor.shutdown(wait=True, cancel_futures=True)
-
-    stacked = {k: np.stack(v) for k, v in values.items()}
-    for k, v in stacked.items():
-        if v.shape[1:] != ref.value.shape:
-            raise ValueError(f"estimates of {k} have shape {v.shape[1:]} but the reference has "
-                             f"{ref.value.shape}")
-    metrics = [_config_metrics(m, s, n, stacked[(m, s, n)], secs[(m, s, n)], ref) for m, s, n in configs]
-    per_method = len(samplers) * len(levels)
-    alpha_family = 1.0 - (1.0 - alpha) ** (1.0 / per_method)
-    metrics = tuple(_with_detection(m, alpha_family) for m in metrics)
-    if image_metrics and ref.value.ndim == 3:
-        metrics = tuple(replace(m, **dict(zip(("psnr", "ssim"), _image_quality(
-            stacked[(m.method, m.sampler, m.spp)], ref.value)))) for m in metrics)
-    fits = {}
-    for m in methods:
-        for s in samplers:
-            rows = [x for x in metrics if x.method == m and x.sampler == s]
-            fits[(m, s)] = _fits(m, s, rows, alpha)
-    verdicts = _verdicts(methods, metrics, fits, alpha_family)
-    return SweepResult(target.name, methods, samplers, levels, replicates, seed, ref, metrics, fits,
-                       verdicts, stacked, secs, computed=len(jobs), cached=cached, alpha=alpha,
-                       alpha_family=alpha_family)
+    return _measure(plan, values, secs, ref, settings.image_metrics, (computed, cached))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from functools import lru_cache, partial
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -156,6 +156,8 @@ def lecture_target() -> Target:
 
 
 _METHOD = re.compile(r"^([a-z_]+)(?::(\d+))?$")
+_DEPTH_ALIAS = re.compile(r"^([a-z_]+?)_depth(\d+)$")   # 'path_depth3' -> 'path:3'
+
 
 
 def parse_method(method: str) -> tuple[str, int | None]:
@@ -163,7 +165,9 @@ def parse_method(method: str) -> tuple[str, int | None]:
 
     ``'path'`` is path tracing with Russian roulette (unbiased), ``'path:3'``
     the same integrator stopped after 3 bounces (``max_depth=3``: biased,
-    light carried by longer paths is missing).
+    light carried by longer paths is missing). ``'path:3'`` is the one
+    spelling of a fixed depth; ``'path_depth3'`` (the chart's former
+    spelling) is accepted as an alias of it.
 
     Examples
     --------
@@ -171,24 +175,27 @@ def parse_method(method: str) -> tuple[str, int | None]:
     ('path', 3)
     >>> parse_method("direct")
     ('direct', None)
+    >>> parse_method("path_depth3")
+    ('path', 3)
     """
     if not isinstance(method, str):
         raise TypeError(f"method must be a string 'integrator[:max_depth]'; got {type(method).__name__}")
-    m = _METHOD.match(method)
+    m = _METHOD.match(_DEPTH_ALIAS.sub(r"\1:\2", method))
     if m is None or (m.group(2) is not None and int(m.group(2)) < 1):
         raise ValueError(f"method must look like 'path' or 'path:3' (integrator[:max_depth >= 1]); "
                          f"got {method!r}")
     return m.group(1), (int(m.group(2)) if m.group(2) is not None else None)
 
 
-@lru_cache(maxsize=8)
-def _scene(name: str):
-    from ..scene import load_scene
+def _scene(scene):
+    """The :class:`~mcvar.scene.Scene` called ``scene`` (a Scene is returned as is). Loading
+    takes well under a millisecond: a target loads its scene once and keeps it (no cache)."""
+    from ..scene import Scene, load_scene
 
-    return load_scene(name)
+    return scene if isinstance(scene, Scene) else load_scene(scene)
 
 
-def _scene_evaluate(scene: str, res: int, method: str, sampler: str, spp: int, rng) -> np.ndarray:
+def _scene_evaluate(scene, res: int, method: str, sampler: str, spp: int, rng) -> np.ndarray:
     from ..integrators import render
 
     integrator, max_depth = parse_method(method)
@@ -197,7 +204,7 @@ def _scene_evaluate(scene: str, res: int, method: str, sampler: str, spp: int, r
     return np.asarray(result.image, dtype=np.float64)
 
 
-def _scene_reference(scene: str, res: int, integrator: str, spp: int, sampler: str, rng) -> np.ndarray:
+def _scene_reference(scene, res: int, integrator: str, spp: int, sampler: str, rng) -> np.ndarray:
     return _scene_evaluate(scene, res, integrator, sampler, spp, rng)
 
 
@@ -227,12 +234,12 @@ def scene_target(name: str, *, res: int = 32, reference_spp: int = 1024, referen
     res = check_count(res, "res")
     reference_spp, reference_chunks = _check_reference_settings(reference_spp, reference_chunks)
     parse_method(reference_integrator)
-    _scene(name)  # fail early on an unknown scene
-    return Target(name=name, evaluate=partial(_scene_evaluate, name, res),
+    scene = _scene(name)  # fails early on an unknown scene; the target owns the loaded scene
+    return Target(name=name, evaluate=partial(_scene_evaluate, scene, res),
                   key=f"scene={name};res={res}",
                   methods=("path", "path:2", "direct"), samplers=("random", "jittered", "sobol"),
                   spp=(1, 4, 16, 64),
-                  reference_task=partial(_scene_reference, name, res, reference_integrator,
+                  reference_task=partial(_scene_reference, scene, res, reference_integrator,
                                          reference_spp, "random"),
                   reference_chunks=reference_chunks,
                   reference_settings=f"integrator={reference_integrator};spp={reference_spp};"

@@ -4,11 +4,15 @@
 module             holds
 =================  ===========================================================
 ``registry``       :class:`Method`, :func:`register`, :data:`METHODS`
+``settings``       :class:`PathSettings` (a path's depth, MIS, kernel, light
+                   sampling, roulette, visible lights), the methods' strategies
 ``film``           :class:`BatchJob`, :class:`BatchResult`, :class:`Film`,
                    :func:`splat`, :class:`Render`
 ``stream``         the per-path sample stream: column layout, :class:`SampleStream`
 ``emitters``       next-event estimation (``Emitters.sample_li``/``pdf_li``) and
                    light subpaths (:func:`sample_le`, :func:`pdf_le`)
+``directions``     :func:`sample_directions`: where a vertex chooses its next
+                   direction (both loops; the seam for path guiding)
 ``state``          the wavefront: ``PathState``, scene tables, MIS weights of
                    emission, Russian roulette, shadow rays
 ``lambertian``     the loop written out for Lambertian triangles and one quad light
@@ -23,7 +27,10 @@ module             holds
 ``photon``         ``photon``: photon tracing, photon maps, visible points,
                    density estimation (Jensen 1996)
 ``sppm``           ``sppm``: stochastic progressive photon mapping
-``driver``         :func:`render`, :class:`WorkerPool`, batches and seeds
+``allocation``     how samples are spread over pixels: :class:`Uniform`,
+                   :class:`Adaptive` (unbiased two-stage), :func:`allocate`
+``driver``         :func:`render` (every method, every allocation),
+                   :class:`WorkerPool`, batches and seeds
 ``pssmlt``         primary-sample-space Metropolis light transport (``chain``)
 =================  ===========================================================
 
@@ -33,18 +40,19 @@ A new method is one module that builds a :class:`Method` and calls
 from __future__ import annotations
 
 from .registry import KINDS, METHODS, Method, get_method, register
+from .settings import HEURISTICS, KERNELS, PathSettings
 from .film import BatchJob, BatchResult, Film, Render, camera_result, splat
 from .stream import SAMPLER_DIM, stream_dim
 from .emitters import LIGHT_SAMPLING, VISIBLE_LIGHTS, Emitters, LightOrigins, VisibleLights, pdf_le, sample_le
 from .state import RR_MAX_DEPTH, RR_START_DEPTH, shadow_rays as _shadow_rays
-from .path import HEURISTICS, KERNELS, trace_camera_paths, trace_paths
+from .path import trace_camera_paths, trace_paths
 from .aov import aov_method
 from . import position  # noqa: F401  (registers the 'position' AOV: the example method)
 from . import light, bdpt  # noqa: F401  (register 'light' and 'bdpt', issue 11)
 from . import radiosity, photon, sppm  # noqa: F401  (register radiosity, photon, sppm)
-from .driver import (BYTES_PER_PATH, MAX_RENDER_BYTES, PATHS_PER_BATCH, WorkerPool,
-                     estimate_render_bytes, render)
-from .stream import WHOLE_SET_FLOATS, sample_slices as _sample_slices
+from .allocation import ALLOCATIONS, PATHS_PER_BATCH, Adaptive, AdaptiveRender, Uniform, allocate
+from .driver import BYTES_PER_PATH, MAX_RENDER_BYTES, WorkerPool, estimate_render_bytes, render
+from .stream import WHOLE_SET_FLOATS, whole_pattern as _whole_pattern
 
 from . import pssmlt  # noqa: F401  (registers 'pssmlt')
 
@@ -57,4 +65,5 @@ __all__ = ["INTEGRATORS", "HEURISTICS", "KERNELS", "KINDS", "METHODS", "Method",
            "trace_camera_paths", "WorkerPool", "PATHS_PER_BATCH", "MAX_RENDER_BYTES", "BYTES_PER_PATH",
            "estimate_render_bytes", "SAMPLER_DIM", "stream_dim", "Emitters", "LightOrigins", "sample_le", "pdf_le",
            "aov_method", "RR_START_DEPTH", "RR_MAX_DEPTH", "LIGHT_SAMPLING",
-           "VISIBLE_LIGHTS", "VisibleLights"]
+           "VISIBLE_LIGHTS", "VisibleLights", "PathSettings", "ALLOCATIONS", "Uniform", "Adaptive",
+           "AdaptiveRender", "allocate"]

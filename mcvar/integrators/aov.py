@@ -133,4 +133,7 @@ register(aov_method("albedo", _albedo, "first-hit albedo (AOV)"))
 register(aov_method("normal", _normal, "first-hit shading normal facing the camera (AOV)"))
 register(aov_method("depth", _depth, "first-hit distance from the camera, 0 on a miss (AOV)"))
 register(aov_method("raster", _raster, "first hit shaded by each light as an unshadowed point light",
-                    miss=_raster_miss, lecture=("no", "no")))
+                    miss=_raster_miss, lecture=("no", "no")).replace(
+    chart_row="Rasterization",
+    theory=("no", "no", "one unshadowed bounce: no sample count brings back the missing shadows and "
+                        "interreflections")))

@@ -42,15 +42,18 @@ References
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from .._validation import check_bool
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult, splat
 from .light import (CHUNK_PATHS, RR_MAX_VERTICES, _bsdf_eval, _connect_camera, _Context, _cos, _dot, _Only,
                     _unit, _unoccluded, camera_subpath, check_scene, light_subpath)
 from .registry import Method, register
 
-__all__ = ["STRATEGY_DEPTH", "bdpt_contributions", "strategy_grid", "strategies_from_extra",
+__all__ = ["STRATEGY_DEPTH", "BDPTSettings", "bdpt_contributions", "strategy_grid", "strategies_from_extra",
            "write_strategies", "run_bdpt_batch"]
 
 #: The strategy images (``strategies=True``) cover every (s, t) with
@@ -208,9 +211,22 @@ def _connect_inner(ctx, L, C, s, t):
 
 
 
-def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, max_depth=None,
-                       heuristic="power", mis=True, strategies=False):
+@dataclass(frozen=True)
+class BDPTSettings:
+    """How :func:`bdpt_contributions` traces: ``max_depth`` (None: Russian roulette), the MIS
+    ``heuristic``, ``mis`` (False: uniform weights) and ``strategies`` (keep every strategy's image)."""
+
+    max_depth: int | None = None
+    heuristic: str = "power"
+    mis: bool = True
+    strategies: bool = False
+
+
+def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, settings: BDPTSettings | None = None):
     """Bidirectional path tracing of one camera path per ``pixel`` (and one light path each).
+
+    ``settings`` (:class:`BDPTSettings`) holds ``max_depth``, ``heuristic``,
+    ``mis`` and ``strategies``, formerly four trailing arguments.
 
     Returns ``(camera_sum, camera_sq, splat_sum, rays, per_strategy)``:
     per-pixel sums of the camera-side estimates (t >= 2; ``camera_sq`` of
@@ -219,12 +235,17 @@ def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, max_dep
     weighted contributions of every strategy of depth ``s + t - 1 <=``
     :data:`STRATEGY_DEPTH` (camera-side ones per pixel, t = 1 splatted).
     """
+    settings = BDPTSettings() if settings is None else settings
+    if not isinstance(settings, BDPTSettings):
+        raise TypeError(f"settings must be a BDPTSettings (max_depth, heuristic, mis, strategies); "
+                        f"got {type(settings).__name__}")
     w, h = res
     n_pix = w * h
-    out = [np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), 0, {} if strategies else None]
+    ctx = _Context(scene, tracer, origins, res, settings.heuristic, settings.mis)
+    out = [np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), np.zeros((n_pix, 3)), 0,
+           {} if settings.strategies else None]
     for a in range(0, pixel.shape[0], CHUNK_PATHS):
-        part = _bdpt_chunk(scene, tracer, origins, res, pixel[a:a + CHUNK_PATHS], offsets[a:a + CHUNK_PATHS],
-                           rng, max_depth, heuristic, mis, strategies)
+        part = _bdpt_chunk(ctx, pixel[a:a + CHUNK_PATHS], offsets[a:a + CHUNK_PATHS], rng, settings)
         for j in range(4):
             out[j] += part[j]
         for key, img in (part[4] or {}).items():
@@ -232,8 +253,10 @@ def bdpt_contributions(scene, tracer, origins, res, pixel, offsets, rng, max_dep
     return tuple(out)
 
 
-def _bdpt_chunk(scene, tracer, origins, res, pixel, offsets, rng, max_depth, heuristic, mis, strategies):
+def _bdpt_chunk(ctx, pixel, offsets, rng, settings: BDPTSettings):
     """:func:`bdpt_contributions` for at most :data:`CHUNK_PATHS` paths."""
+    scene, tracer, origins, res = ctx.scene, ctx.tracer, ctx.em, ctx.res
+    max_depth, strategies = settings.max_depth, settings.strategies
     w, h = res
     n = pixel.shape[0]
     n_pix = w * h
@@ -242,7 +265,6 @@ def _bdpt_chunk(scene, tracer, origins, res, pixel, offsets, rng, max_depth, heu
     max_l = RR_MAX_VERTICES if roulette else max_depth
     C = camera_subpath(scene, tracer, res, pixel, offsets, max_c, rng, roulette)
     L = light_subpath(scene, tracer, origins, n, max_l, rng, roulette)
-    ctx = _Context(scene, tracer, origins, res, heuristic, mis)
     rays = C.rays + L.rays
     per_path = np.zeros((n, 3))
     splats = np.zeros((n_pix, 3))
@@ -345,9 +367,10 @@ def run_bdpt_batch(job: BatchJob) -> BatchResult:
     n_pix = job.n_pixels
     pixel = np.repeat(np.arange(n_pix), job.spp)
     offsets = job.u[:, 0:2] if job.u is not None else job.rng.random((pixel.size, 2))
-    cam, _, spl, rays, per = bdpt_contributions(
-        job.scene, job.tracer, LightOrigins(job.scene), job.res, pixel, offsets, job.rng, job.max_depth,
-        job.heuristic, bool(job.options.get("mis", True)), bool(job.options.get("strategies", False)))
+    settings = BDPTSettings(job.max_depth, job.heuristic, bool(job.options.get("mis", True)),
+                            bool(job.options.get("strategies", False)))
+    cam, _, spl, rays, per = bdpt_contributions(job.scene, job.tracer, LightOrigins(job.scene), job.res, pixel,
+                                                offsets, job.rng, settings)
     total = cam + spl
     if not np.all(np.isfinite(total)):
         raise FloatingPointError("bdpt produced non-finite radiance (a bug, please report)")
@@ -356,10 +379,14 @@ def run_bdpt_batch(job: BatchJob) -> BatchResult:
 
 
 def _check_bdpt(scene, options):
+    check_bool(options["mis"], "mis")
+    check_bool(options["strategies"], "strategies")
     check_scene(scene, options, "bdpt")
 
 
 register(Method(
     "bdpt", "splat", run_bdpt_batch,
     "bidirectional path tracing: every (s, t) strategy, weighted by MIS (heuristic=; mis=False: uniform)",
-    options={"mis": True, "strategies": False}, check_scene=_check_bdpt, lecture=("yes", "yes")))
+    options={"mis": True, "strategies": False}, check_scene=_check_bdpt, lecture=("yes", "yes"),
+    chart_row="Bidirectional Path Tracing",
+    theory=("yes", "yes", "every (s, t) connection strategy weighted by MIS: unbiased and consistent")))

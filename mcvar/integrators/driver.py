@@ -1,44 +1,47 @@
-"""The driver: :func:`render` (argument checks, batches, seeds, executors) and
-:class:`WorkerPool`, a local process pool with a lifetime.
+"""The driver: :func:`render` (argument checks, memory guard, seeds, tracer,
+executors, progress, Ctrl-C) and :class:`WorkerPool`, a local process pool
+with a lifetime.
 
-A render is split into spp batches; batch ``b`` is a picklable description
-(the method, the scene, its seeds and its slice of the sample pattern) that
-any ``concurrent.futures.Executor``-like object runs (``executor.submit``).
-Batch results are added to the :class:`~mcvar.integrators.film.Film` in batch
-order, so the image does not depend on which executor ran the batches or in
-what order they finished.
+Every method and both sample allocations run through :func:`render`: the
+allocation (:mod:`mcvar.integrators.allocation`: uniform spp batches, or
+adaptive two-stage sampling) decides the stages and their batches, the driver
+runs them. Batch ``b`` of a stage is a picklable description (the method, the
+scene, the render's tracer, its pixels, its seed and its slice of the sample
+pattern) that any ``concurrent.futures.Executor``-like object runs
+(``executor.submit``); descriptions are made lazily, a bounded window of them
+in flight. Results reach the film in batch order, so the image does not depend
+on which executor ran the batches or in what order they finished.
 """
 from __future__ import annotations
 
-import math
+import os
 import time
-import uuid
+from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import dataclass
-from typing import Callable, Literal
+from contextlib import closing
+from dataclasses import dataclass, fields
+from typing import Callable
 
 import numpy as np
 
-from .._validation import as_rng, check_choice, check_count
-from ..samplers import SAMPLERS, pixel_samples
+from .._validation import MEMORY_BUDGET, as_rng, check_choice, check_count
+from ..samplers import SAMPLERS
 from ..scene import Scene
 from ..tracer import Tracer
-from .film import BatchJob, Film, Render
-from .path import HEURISTICS
-from .registry import METHODS, Method, get_method
-from .stream import CAMERA_DIMS, SAMPLER_DIM, WHOLE_SET_FLOATS, batch_stream, sample_slices, stream_dim
+from .allocation import PATHS_PER_BATCH, get_allocation
+from .film import BatchJob, Render
+from .registry import Method, get_method, pop_method_name
+from .settings import PATH_OPTIONS, PathSettings
+from .stream import CAMERA_DIMS, SAMPLER_DIM, batch_stream, stream_dim
 
 __all__ = ["render", "WorkerPool", "PATHS_PER_BATCH", "MAX_RENDER_BYTES", "BYTES_PER_PATH",
            "estimate_render_bytes"]
 
-#: Paths per spp batch when ``batch_spp`` is not given: big enough that per-bounce
-#: overhead is small, small enough that two processes do not fight over the
-#: shared cache and memory bandwidth (measured: 1.8x with 2 workers at 2^16, 1.4x at 2^18).
-PATHS_PER_BATCH = 1 << 16
 #: Default memory budget of one render (bytes): :func:`render` refuses a render
 #: whose :func:`estimate_render_bytes` exceeds it, before allocating anything
-#: (``render(..., max_memory=...)`` overrides it).
-MAX_RENDER_BYTES = 4 * 2 ** 30
+#: (``render(..., max_memory=...)`` overrides it). The same number as every other
+#: size check's, :data:`mcvar._validation.MEMORY_BUDGET` (4 GiB).
+MAX_RENDER_BYTES = MEMORY_BUDGET
 #: Working memory per path of a batch in flight (state, temporaries, shadow
 #: rays, sample stream), bytes: an upper estimate. Measured (tracemalloc peak
 #: of one 2^16-path Cornell batch, film included): 400 B/path for the
@@ -48,12 +51,15 @@ BYTES_PER_PATH = 2048
 
 
 def estimate_render_bytes(n_pixels: int, batch_paths: int, dim: int, workers: int = 1,
-                          whole_floats: int = 0) -> int:
-    """Memory a render needs (bytes): the film's four ``(n_pixels, 3)`` float64
-    arrays (sums, squared sums, image, variance), ``workers`` batches in flight
-    (:data:`BYTES_PER_PATH` plus ``dim`` float64 sample dimensions per path) and
-    the kept sample pattern (``whole_floats`` float64 numbers)."""
-    return int(n_pixels * 3 * 8 * 4 + workers * batch_paths * (BYTES_PER_PATH + 8 * dim) + 8 * whole_floats)
+                          whole_floats: int = 0, films: int = 1) -> int:
+    """Memory a render needs (bytes): per film (adaptive renders keep two: the
+    pilot's and the image's) four ``(n_pixels, 3)`` float64 arrays (sums,
+    squared sums, image, variance) and the per-pixel counts, ``workers``
+    batches in flight (:data:`BYTES_PER_PATH` plus ``dim`` float64 sample
+    dimensions per path) and the kept sample pattern (``whole_floats``
+    float64 numbers)."""
+    return int(films * n_pixels * (3 * 8 * 4 + 8) + workers * batch_paths * (BYTES_PER_PATH + 8 * dim)
+               + 8 * whole_floats)
 
 
 # ---------------------------------------------------------------------------
@@ -72,8 +78,12 @@ def _pool_context():
 class WorkerPool(Executor):
     """A local process pool with a lifetime, for one render or many.
 
-    ``render(..., workers=n)`` makes one for the render and shuts it down at
-    the end. To keep warm processes over several renders (a fresh process
+    ``render(..., workers=n)`` makes one of ``n - 1`` processes for the render
+    (the calling process is the n-th worker: it takes not-yet-started batches
+    from the end of the queue while the pool works from the front, so two
+    workers on a machine whose second core is busy cost little more than
+    one) and shuts it down at the end. Passed as ``executor``, a pool does all
+    the work and the caller waits. To keep warm processes over several renders (a fresh process
     spends its first batch at about half speed touching new memory), make
     one and pass it::
 
@@ -86,6 +96,7 @@ class WorkerPool(Executor):
     """
 
     def __init__(self, workers: int):
+        #: processes (the driver keeps ``2 workers + 2`` batches in flight)
         self.workers = check_count(workers, "workers")
         self._executor: ProcessPoolExecutor | None = None
 
@@ -100,54 +111,154 @@ class WorkerPool(Executor):
             executor.shutdown(wait=wait, cancel_futures=cancel_futures)
 
 
-#: Per-process cache of the render in progress' tracer, by render token (one
-#: entry): built once per render and process instead of once per batch
-#: (processes forked after it was built inherit it).
-_TRACER_CACHE: dict = {}
+# ---------------------------------------------------------------------------
+# Batches
 
-
-def _tracer(token: str, scene, precision: str) -> Tracer:
-    tracer = _TRACER_CACHE.get(token)
-    if tracer is None:
-        tracer = Tracer(scene, dtype=precision)
-        _TRACER_CACHE.clear()
-        _TRACER_CACHE[token] = tracer
-    return tracer
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Batch:
-    """One batch, picklable: what crosses to the process that runs it."""
+    """One batch, picklable: what crosses to the process that runs it (the
+    tracer included: built once per render, ~20 kB for the Cornell box)."""
 
     method: Method
     scene: Scene
-    precision: str
-    token: str
+    tracer: Tracer
     res: tuple
+    pixels: np.ndarray | None
     spp: int
     sampler: str
     dim: int
     whole: np.ndarray | None
-    rng: np.random.Generator
-    max_depth: int | None
-    heuristic: str
+    seed: np.random.SeedSequence
+    bit_generator: type
+    settings: PathSettings
     options: dict
     prepared: object
 
+    @property
+    def paths(self) -> int:
+        n = self.res[0] * self.res[1] if self.pixels is None else self.pixels.shape[0]
+        return n * self.spp
+
 
 def _run_batch(batch: _Batch):
-    """Build the :class:`BatchJob` (tracer, sample stream) and run the method."""
-    n_pix = batch.res[0] * batch.res[1]
-    u = batch_stream(batch.sampler, n_pix, batch.spp, batch.dim, batch.whole, batch.rng)
-    job = BatchJob(scene=batch.scene, tracer=_tracer(batch.token, batch.scene, batch.precision),
-                   res=batch.res, spp=batch.spp, sampler=batch.sampler, u=u, rng=batch.rng,
-                   max_depth=batch.max_depth, heuristic=batch.heuristic, options=dict(batch.options),
-                   prepared=batch.prepared)
+    """Build the :class:`BatchJob` (sample stream, generator) and run the method."""
+    rng = np.random.Generator(batch.bit_generator(batch.seed))
+    n_pix = batch.res[0] * batch.res[1] if batch.pixels is None else batch.pixels.shape[0]
+    u = batch_stream(batch.sampler, n_pix, batch.spp, batch.dim, batch.whole, rng)
+    job = BatchJob(scene=batch.scene, tracer=batch.tracer, res=batch.res, spp=batch.spp, sampler=batch.sampler,
+                   u=u, rng=rng, settings=batch.settings, options=dict(batch.options), prepared=batch.prepared,
+                   pixels=batch.pixels)
     return batch.method.run_batch(job)
 
 
+def _child(stream: np.random.Generator, i: int) -> np.random.SeedSequence:
+    """What ``stream.spawn(i + 1)[i]`` would seed, made alone (spawning 2^28
+    generators up front would cost minutes and gigabytes)."""
+    seq = stream.bit_generator.seed_seq
+    return np.random.SeedSequence(seq.entropy, spawn_key=tuple(seq.spawn_key) + (seq.n_children_spawned + i,),
+                                  pool_size=seq.pool_size)
+
+
+def _window(executor, parent_works: bool) -> int:
+    """Batches in flight: two per worker and two more (bounded, whatever the render's size)."""
+    n = getattr(executor, "workers", None) or getattr(executor, "_max_workers", None) or os.cpu_count() or 1
+    return 2 * (int(n) + parent_works) + 2
+
+
+def _in_order(batches, executor, parent_works: bool):
+    """Run ``batches`` (an iterator, read lazily) and yield ``(batch, result)`` in order.
+
+    ``executor`` None: in this process. Otherwise a bounded window is
+    submitted; with ``parent_works`` this process, while the oldest batch
+    is still running, cancels the newest batch no worker has started and
+    runs it itself. A batch's result depends only on its description, so
+    neither who ran it nor when changes the image.
+    """
+    if executor is None:
+        for batch in batches:
+            yield batch, _run_batch(batch)
+        return
+    window = _window(executor, parent_works)
+    pending = deque()            # [batch, future, (result,) if this process ran it]
+    source = iter(batches)
+    try:
+        while True:
+            while len(pending) < window:
+                batch = next(source, None)
+                if batch is None:
+                    break
+                future = executor.submit(_run_batch, batch)
+                if not all(callable(getattr(future, a, None)) for a in ("result", "done", "cancel")):
+                    raise TypeError(f"executor.submit must return a concurrent.futures.Future (result, done, "
+                                    f"cancel); {type(executor).__name__}.submit returned {type(future).__name__}")
+                pending.append([batch, future, None])
+            if not pending:
+                return
+            head = pending[0]
+            if head[2] is None and parent_works and not head[1].done():
+                stolen = next((e for e in reversed(pending) if e[2] is None and e[1].cancel()), None)
+                if stolen is not None:
+                    stolen[2] = (_run_batch(stolen[0]),)
+                    continue
+            pending.popleft()
+            yield head[0], head[2][0] if head[2] is not None else head[1].result()
+    finally:
+        for entry in pending:       # never leave a render's batches running
+            entry[1].cancel()
+
+
 # ---------------------------------------------------------------------------
-# render()
+# The request and the render in progress
+
+@dataclass(frozen=True)
+class _RunOptions:
+    """How a render is run (not what it computes): the keywords of :func:`render` below."""
+
+    batch_spp: int | None = None
+    workers: int = 1
+    executor: object = None
+    progress: object = False
+    precision: str = "float32"
+    max_memory: int | None = None
+    sampler_dim: int | None = None
+
+    def __post_init__(self):
+        if self.batch_spp is not None:
+            object.__setattr__(self, "batch_spp", check_count(self.batch_spp, "batch_spp"))
+        object.__setattr__(self, "workers", check_count(self.workers, "workers"))
+        if self.executor is not None and not callable(getattr(self.executor, "submit", None)):
+            raise TypeError(f"executor must have a submit(fn, *args) method (a concurrent.futures.Executor); "
+                            f"got {type(self.executor).__name__}")
+        if not (isinstance(self.progress, (bool, np.bool_)) or callable(self.progress)):
+            raise TypeError(f"progress must be a bool or a callable(done, total); got {type(self.progress).__name__}")
+        check_choice(self.precision, "precision", ("float32", "float64"))
+        for key in ("max_memory", "sampler_dim"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, check_count(getattr(self, key), key))
+
+    @classmethod
+    def from_keywords(cls, given: dict) -> "_RunOptions":
+        return cls(**{f.name: given.pop(f.name) for f in fields(cls) if f.name in given})
+
+
+@dataclass(frozen=True, eq=False)
+class _Plan:
+    """A checked render request."""
+
+    scene: Scene
+    method: Method
+    spp: int
+    res: tuple
+    sampler: str
+    settings: PathSettings
+    options: dict
+    run: _RunOptions
+    dim: int
+
+    @property
+    def n_pixels(self) -> int:
+        return self.res[0] * self.res[1]
+
 
 def _as_res(res) -> tuple:
     if isinstance(res, (int, np.integer)) and not isinstance(res, (bool, np.bool_)):
@@ -158,97 +269,235 @@ def _as_res(res) -> tuple:
     raise TypeError(f"res must be an int (square image) or a (width, height) pair; got {res!r}")
 
 
-def _batch_sizes(spp: int, n_pix: int, batch_spp, sampler: str) -> list[int]:
-    if batch_spp is None:
-        if n_pix * spp <= PATHS_PER_BATCH:
-            b = spp
-        else:
-            b = max(1, PATHS_PER_BATCH // n_pix)
-            base = 4 if sampler in ("grid", "jittered") else 2   # keep squares / powers of two
-            b = base ** int(math.log(b, base) + 1e-9)
-    else:
-        b = check_count(batch_spp, "batch_spp")
-    b = min(b, spp)
-    sizes = [b] * (spp // b)
-    if spp % b:
-        sizes.append(spp % b)
-    return sizes
-
-
-def _sampler_dim(method: Method, max_depth, sampler_dim: int) -> int:
-    """Columns of the sample stream the ``sampler`` feeds for ``method``."""
-    if method.kind == "first_hit":
+def _sampler_dim(method: Method, settings: PathSettings, options: dict, sampler_dim: int) -> int:
+    """Columns of the sample stream the ``sampler`` feeds for ``method`` (:attr:`Method.stream_dims`)."""
+    dims = method.sampler_columns(options)
+    if dims is not None:
+        return min(dims, sampler_dim)
+    if method.kind != "camera":
         return CAMERA_DIMS
-    depth = method.fixed_depth if method.fixed_depth is not None else max_depth
+    depth = method.fixed_depth if method.fixed_depth is not None else settings.max_depth
     need = stream_dim(depth)
     return sampler_dim if need is None else max(CAMERA_DIMS, min(sampler_dim, need))
 
 
-def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sampler: str = "random",
-           rng=None, max_depth: int | None = None, heuristic: str = "power", batch_spp: int | None = None,
-           workers: int = 1, executor=None, progress: bool | Callable[[int, int], None] = False,
-           precision: Literal["float32", "float64"] = "float32", max_memory: int | None = None,
-           sampler_dim: int | None = None, **options) -> Render:
+def _path_settings(method: Method, kw: dict) -> tuple[PathSettings, dict]:
+    """The render's :class:`PathSettings` and the method's options, from the keywords left in ``kw``."""
+    whole = kw.pop("settings", None)
+    given = {f.name: kw.pop(f.name) for f in fields(PathSettings) if f.name in kw}
+    if whole is not None:
+        if not isinstance(whole, PathSettings):
+            raise TypeError(f"settings must be a PathSettings; got {type(whole).__name__}")
+        if given:
+            raise ValueError(f"give settings=PathSettings(...) or its fields ({', '.join(sorted(given))}) "
+                             "as keywords, not both")
+        default = PathSettings()
+        given = {f.name: getattr(whole, f.name) for f in fields(PathSettings)
+                 if getattr(whole, f.name) != getattr(default, f.name)}
+    # the fields beyond depth and heuristic are options of the methods that read them
+    opts = method.resolve_options({**kw, **{k: v for k, v in given.items() if k in PATH_OPTIONS}})
+    settings = PathSettings(max_depth=given.get("max_depth"), heuristic=given.get("heuristic", "power"),
+                            **{k: opts[k] for k in PATH_OPTIONS if k in opts})
+    if settings.max_depth is not None:
+        if not method.uses_max_depth:
+            raise ValueError(f"max_depth does not apply to the method {method.name!r}; got {settings.max_depth}")
+        if method.fixed_depth is not None and settings.max_depth != method.fixed_depth:
+            raise ValueError(f"max_depth must be None or {method.fixed_depth} for {method.name!r}; "
+                             f"got {settings.max_depth}")
+    return settings, opts
+
+
+def _plan(scene, method, spp, res, sampler, allocation, keywords: dict):
+    """Check everything about a request before any work: ``(plan, allocation)``."""
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
+    kw = dict(keywords)
+    method = get_method(pop_method_name(kw, method, "render"))
+    sampler = check_choice(sampler, "sampler", tuple(SAMPLERS))
+    spp = check_count(spp, "spp")
+    size = _as_res(res)
+    allocation = get_allocation(allocation)
+    run = _RunOptions.from_keywords(kw)
+    settings, opts = _path_settings(method, kw)
+    default_dim = allocation.sampler_dim or SAMPLER_DIM
+    dim = _sampler_dim(method, settings, opts, default_dim if run.sampler_dim is None
+                       else max(CAMERA_DIMS, run.sampler_dim))
+    plan = _Plan(scene, method, spp, size, sampler, settings, opts, run, dim)
+    allocation = allocation.check(plan)
+    mem = allocation.memory(plan)
+    budget = MAX_RENDER_BYTES if run.max_memory is None else run.max_memory
+    need = estimate_render_bytes(plan.n_pixels, mem["batch_paths"], 0 if sampler == "random" else dim,
+                                 run.workers if run.executor is None else 1, mem["whole_floats"], mem["films"])
+    if need > budget:
+        # name the option that asks for the memory: the sample stream's columns when they alone
+        # exceed the budget (sampler_dim=2**40), else the image and its batches
+        columns = 8 * dim * mem["batch_paths"] * (run.workers if run.executor is None else 1)
+        cause = (f"sampler_dim = {run.sampler_dim} ({dim} sample columns per path)"
+                 if run.sampler_dim is not None and columns > budget else "lower res or batch_spp")
+        raise ValueError(f"render of {size[0]} x {size[1]} pixels ({allocation.name} allocation, "
+                         f"{mem['batch_paths']} paths per batch) needs about {need / 2 ** 30:.3g} GiB (film and "
+                         f"batch memory), more than max_memory = {budget / 2 ** 30:.3g} GiB; "
+                         + (f"lower {cause}" if cause.startswith("sampler_dim") else cause) + ", or raise max_memory")
+    if method.check_scene is not None:
+        method.check_scene(scene, opts)
+    return plan, allocation
+
+
+@dataclass
+class _Streams:
+    """The render's random streams: ``as_rng(rng).spawn(4)``."""
+
+    prepare: np.random.Generator
+    pattern: np.random.Generator
+    stage: tuple
+
+
+class _Render:
+    """One render in progress, with a lifetime (a ``with`` block): the tracer
+    (built once, owned here, shipped inside the batches), the worker pool it
+    made, the progress bar; :meth:`stage` runs batches, :meth:`result` makes
+    the :class:`Render`."""
+
+    def __init__(self, plan: _Plan, allocation, rng):
+        self.plan, self.allocation = plan, allocation
+        root = as_rng(rng).spawn(4)
+        self.streams = _Streams(root[0], root[1], (root[2], root[3]))
+        self.prepared = plan.method.prepare(plan.scene, plan.options, self.streams.prepare) \
+            if plan.method.prepare is not None else None
+        self.tracer = Tracer(plan.scene, dtype=plan.run.precision)
+        self.interrupted = False
+        self.done = 0
+        self.total = 0
+        self._bar = None
+        self._pool = None
+        self._start = time.perf_counter()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._pool is not None:
+            self._pool.shutdown(wait=not self.interrupted and exc[0] is None, cancel_futures=True)
+        if self._bar is not None:
+            self._bar.close()
+        return False
+
+    def start(self, *, total: int) -> None:
+        """Progress over ``total`` units (the allocation's ``progress_unit``); the clock starts."""
+        self.total = total
+        if self.plan.run.progress is True:
+            from tqdm.auto import tqdm
+
+            unit = self.allocation.progress_unit
+            self._bar = tqdm(total=total, unit=unit, unit_scale=unit == "path", leave=False,
+                             desc=f"{self.plan.scene.name} {self.plan.method.name}")
+        self._start = time.perf_counter()
+
+    def _executor(self, n_batches: int):
+        """``(executor, parent_works)`` for a stage of ``n_batches``."""
+        run = self.plan.run
+        if run.executor is not None:
+            return run.executor, False
+        if run.workers > 1 and n_batches > 1:
+            if self._pool is None:
+                self._pool = WorkerPool(run.workers - 1)
+            return self._pool, True
+        return None, False
+
+    def stage(self, specs, n_batches: int, stream, sink, *, settings: PathSettings | None = None) -> None:
+        """Run the batches ``specs`` (an iterator of ``Spec(pixels, spp, whole)``), seeded
+        by child ``i`` of ``stream``; ``sink(spec, result)`` in order, then progress."""
+        plan = self.plan
+        settings = plan.settings if settings is None else settings
+        bitgen = type(stream.bit_generator)
+        batches = (_Batch(plan.method, plan.scene, self.tracer, plan.res, spec.pixels, spec.spp, plan.sampler,
+                          plan.dim, spec.whole, _child(stream, i), bitgen, settings, plan.options, self.prepared)
+                   for i, spec in enumerate(specs))
+        executor, parent_works = self._executor(n_batches)
+        unit_spp = self.allocation.progress_unit == "spp"
+        callback = plan.run.progress if callable(plan.run.progress) else None
+        with closing(_in_order(batches, executor, parent_works)) as results:
+            for batch, result in results:
+                sink(batch, result)
+                step = batch.spp if unit_spp else batch.paths
+                self.done += step
+                if self._bar is not None:
+                    self._bar.update(step)
+                if callback is not None:
+                    callback(self.done, self.total)
+
+    def result(self, cls=Render, **fields) -> Render:
+        """The :class:`Render` (or ``cls``) of ``fields`` (image, variance, spp, rays,
+        batch_spp, extra, ...) and the render's settings, time and interruption."""
+        plan = self.plan
+        return cls(seconds=time.perf_counter() - self._start, interrupted=self.interrupted, scene=plan.scene.name,
+                   method=plan.method.name, sampler=plan.sampler, res=plan.res, max_depth=plan.settings.max_depth,
+                   heuristic=plan.settings.heuristic, workers=plan.run.workers, precision=plan.run.precision,
+                   options=plan.options, **fields)
+
+
+# ---------------------------------------------------------------------------
+# render()
+
+def render(scene: Scene, *, method: str | None = None, spp: int = 16, res=64, sampler: str = "random", rng=None,
+           allocation="uniform", **settings) -> Render:
     """Render ``scene`` with one method: the mean radiance of ``spp`` samples per pixel.
 
     Parameters
     ----------
     scene : Scene
         From :func:`mcvar.scene.load_scene`.
-    integrator : str
+    method : str
         A registered method, one of :data:`mcvar.integrators.METHODS`
-        (``path``, ``direct``, ... see docs/integrators.md).
+        (``path``, the default, ``direct``, ... see docs/integrators.md);
+        ``integrator=`` is an accepted alias (both given: ``ValueError``).
     spp : int
         Samples per pixel, >= 1 (for splatting and Markov-chain methods the
-        same work: ``W H spp`` paths).
+        same work: ``W H spp`` paths; adaptive allocation: the average).
     res : int or (int, int)
         Square side, or ``(width, height)``.
     sampler : str
         A sampler of :data:`mcvar.samplers.SAMPLERS`; it feeds the first
         ``sampler_dim`` columns of every path's sample stream (pixel position,
         then per vertex light, BSDF, roulette and emitter choice:
-        :mod:`mcvar.integrators.stream`), iid beyond.
+        :mod:`mcvar.integrators.stream`; only the columns the method reads,
+        :attr:`Method.stream_dims`), iid beyond.
     rng : None, int, SeedSequence or Generator
         The same seed gives the same image, for any ``workers`` or ``executor``.
-    max_depth : int or None
-        Maximum path segments (1 = emitters seen directly, 2 = + direct
-        light, ...; fixed depth is biased); None: Russian roulette
-        (unbiased). Methods with their own depth (``direct*``: 2) accept only
-        None or that depth; first-hit methods only None.
-    heuristic : {'power', 'balance'}
-        MIS weights (Veach's power heuristic with beta = 2, or balance).
-    batch_spp : int, optional
-        Samples per pixel per batch; default: all of them if the batch holds at
-        most :data:`PATHS_PER_BATCH` paths, else a power of two (of four for
-        grid / jittered) that fits.
-    workers : int
-        Shorthand for ``executor=WorkerPool(workers)`` for this render
-        (processes, ``fork`` where available). The image is the same as with
-        ``workers=1``; it pays only for renders of two or more batches.
-    executor : concurrent.futures.Executor-like, optional
-        Runs the batches (anything with ``submit(fn, *args)`` returning a
-        future with ``result()``: a :class:`WorkerPool`, a
-        ``ProcessPoolExecutor``, Dask's ``Client.get_executor()`` ...). The
-        image is the same whichever runs them.
-    progress : bool or callable
-        True: a tqdm progress bar; a callable is called as
-        ``progress(spp_done, spp_total)`` after each batch.
-    precision : {'float32', 'float64'}
-        Ray-geometry precision of the intersection tests (radiance is always
-        accumulated in float64).
-    sampler_dim : int, optional
-        Columns of every path's sample stream the ``sampler`` feeds (default
-        :data:`~mcvar.integrators.stream.SAMPLER_DIM` = 20: the camera and three
-        vertices; at most what ``max_depth`` reads); later columns are iid.
-        Each pair of columns costs about 0.1 s per million paths to draw
-        (per-pixel shuffles), so fewer pay on fast renders.
-    max_memory : int, optional
-        Memory budget in bytes (default :data:`MAX_RENDER_BYTES`): a render
-        whose :func:`estimate_render_bytes` exceeds it is refused with a
-        ``ValueError`` before anything is allocated.
-    **options
-        The method's own options (``METHODS[integrator].options``, e.g.
-        ``kernel='general'`` for the path methods); any other is a ``ValueError``.
+    allocation : {'uniform', 'adaptive'} or an allocation object
+        How samples are spread over pixels
+        (:mod:`mcvar.integrators.allocation`): ``uniform`` (``spp`` in every
+        pixel) or ``adaptive`` (unbiased two-stage sampling: a pilot decides,
+        the second stage's samples alone make the image; camera-kind
+        methods; returns an :class:`AdaptiveRender` with ``spp_map``);
+        ``Adaptive(pilot_spp=..., min_spp=..., max_spp=..., exponent=...)``
+        sets its parameters.
+    **settings
+        Path settings, the fields of :class:`PathSettings` (``max_depth``,
+        ``heuristic``, and for the path methods ``kernel``,
+        ``light_sampling``, ``rr_depth``, ``rr_threshold``,
+        ``visible_lights``), or ``settings=PathSettings(...)``; run
+        settings: ``batch_spp`` (uniform: samples per pixel per batch;
+        default all of them if the batch holds at most
+        :data:`PATHS_PER_BATCH` paths, else a power of two, of four for grid
+        / jittered, that fits), ``workers`` (processes: the caller and
+        ``workers - 1`` of a :class:`WorkerPool` made for this render; the
+        image is the same as with 1), ``executor`` (anything with
+        ``submit(fn, *args)``: a :class:`WorkerPool`, a
+        ``ProcessPoolExecutor``, Dask's ``Client.get_executor()`` ...; the
+        image is the same whichever runs the batches), ``progress`` (True: a
+        tqdm bar; a callable is called as ``progress(done, total)`` after
+        each batch, in spp for uniform and in paths for adaptive
+        allocation), ``precision`` (``'float32'`` or ``'float64'`` ray
+        geometry; radiance is always float64), ``max_memory`` (bytes,
+        default :data:`MAX_RENDER_BYTES`: a render whose
+        :func:`estimate_render_bytes` exceeds it is refused with a
+        ``ValueError`` before anything is allocated), ``sampler_dim``
+        (columns the sampler feeds, default
+        :data:`~mcvar.integrators.stream.SAMPLER_DIM` = 20 for uniform and
+        :data:`~mcvar.integrators.allocation.ADAPTIVE_DIM` = 6 for adaptive
+        renders; at most what the method reads); and the method's own options
+        (``METHODS[method].options``); any other keyword is a ``ValueError``.
 
     Returns
     -------
@@ -258,13 +507,16 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
 
     Notes
     -----
-    ``as_rng(rng).spawn(n_batches + 2)``: stream 0 goes to the method's
-    ``prepare``, stream 1 draws the kept sample pattern
-    (:func:`mcvar.integrators.stream.sample_slices`), stream ``2 + b`` is batch
-    ``b``'s (the same whatever the total number of batches). Batch results
-    are added in batch order. Ctrl-C (``KeyboardInterrupt``, also when
-    raised by a ``progress`` callback) stops the render and returns the
-    batches finished so far with ``interrupted=True``.
+    ``as_rng(rng).spawn(4)``: stream 0 goes to the method's ``prepare``,
+    stream 1 draws the kept sample pattern
+    (:func:`mcvar.integrators.stream.whole_pattern`), streams 2 and 3 are the
+    stages' (uniform: one; adaptive: the pilot, the second stage), batch
+    ``b`` of a stage seeded by the stage stream's child ``b`` (the same
+    whatever the number of batches). Batch descriptions are made lazily, at
+    most ``2 workers + 2`` in flight, and results are added in batch order.
+    Ctrl-C (``KeyboardInterrupt``, also when raised by a ``progress``
+    callback) stops the render and returns the batches finished so far with
+    ``interrupted=True``.
 
     Examples
     --------
@@ -273,96 +525,6 @@ def render(scene: Scene, *, integrator: str = "path", spp: int = 16, res=64, sam
     >>> r.image.shape, r.spp
     ((8, 8, 3), 2)
     """
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
-    method = get_method(integrator)
-    sampler = check_choice(sampler, "sampler", tuple(SAMPLERS))
-    heuristic = check_choice(heuristic, "heuristic", tuple(HEURISTICS))
-    precision = check_choice(precision, "precision", ("float32", "float64"))
-    spp = check_count(spp, "spp")
-    size = _as_res(res)
-    workers = check_count(workers, "workers")
-    if executor is not None and not callable(getattr(executor, "submit", None)):
-        raise TypeError(f"executor must have a submit(fn, *args) method (a concurrent.futures.Executor); "
-                        f"got {type(executor).__name__}")
-    opts = method.resolve_options(options)
-    if max_depth is not None:
-        max_depth = check_count(max_depth, "max_depth")
-        if not method.uses_max_depth:
-            raise ValueError(f"max_depth does not apply to the first-hit method {method.name!r}; got {max_depth}")
-        if method.fixed_depth is not None and max_depth != method.fixed_depth:
-            raise ValueError(f"max_depth must be None or {method.fixed_depth} for {method.name!r}; got {max_depth}")
-    n_pix = size[0] * size[1]
-    sizes = _batch_sizes(spp, n_pix, batch_spp, sampler)
-    dim = _sampler_dim(method, max_depth, SAMPLER_DIM if sampler_dim is None
-                       else max(CAMERA_DIMS, check_count(sampler_dim, "sampler_dim")))
-    budget = MAX_RENDER_BYTES if max_memory is None else check_count(max_memory, "max_memory")
-    whole_dims = 0 if sampler == "random" or len(sizes) == 1 else \
-        min(dim, WHOLE_SET_FLOATS // (n_pix * spp)) // 2 * 2
-    need = estimate_render_bytes(n_pix, n_pix * sizes[0], 0 if sampler == "random" else dim,
-                                 workers if executor is None else 1, n_pix * spp * whole_dims)
-    if need > budget:
-        raise ValueError(f"render of {size[0]} x {size[1]} pixels at {sizes[0]} spp per batch needs about "
-                         f"{need / 2 ** 30:.3g} GiB (film and batch memory), more than max_memory = "
-                         f"{budget / 2 ** 30:.3g} GiB; lower res or batch_spp, or raise max_memory")
-    for b in set(sizes):  # a sampler that cannot make b points fails here, before any work
-        pixel_samples(sampler, 1, b, dim=2, rng=0)
-    if method.check_scene is not None:
-        method.check_scene(scene, opts)
-    streams = as_rng(rng).spawn(len(sizes) + 2)
-    prepared = method.prepare(scene, opts, streams[0]) if method.prepare is not None else None
-    slices = sample_slices(sampler, n_pix, spp, sizes, dim, streams[1])
-    token = uuid.uuid4().hex
-    _tracer(token, scene, precision)          # built once here; forked workers inherit it
-    batches = [_Batch(method, scene, precision, token, size, b, sampler, dim, whole, stream, max_depth,
-                      heuristic, opts, prepared)
-               for b, whole, stream in zip(sizes, slices, streams[2:])]
-
-    film = Film(n_pix, per_sample=method.kind in ("camera", "first_hit"))
-    interrupted = False
-    bar = None
-    if progress is True:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=spp, unit="spp", desc=f"{scene.name} {method.name}", leave=False)
-    callback = progress if callable(progress) else None
-    start = time.perf_counter()
-
-    def collect(result, k):
-        film.add(result, sizes[k])
-        if bar is not None:
-            bar.update(sizes[k])
-        if callback is not None:
-            callback(film.spp, spp)
-
-    own_pool = None
-    if executor is None and workers > 1 and len(batches) > 1:
-        executor = own_pool = WorkerPool(workers)
-    finished = False
-    try:
-        if executor is None:
-            for k, batch in enumerate(batches):
-                collect(_run_batch(batch), k)
-        else:
-            futures = [executor.submit(_run_batch, batch) for batch in batches]
-            try:
-                for k, fut in enumerate(futures):
-                    collect(fut.result(), k)
-            finally:
-                for fut in futures:       # never leave a render's batches running
-                    fut.cancel()
-        finished = True
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        if own_pool is not None:
-            own_pool.shutdown(wait=finished, cancel_futures=True)
-        _TRACER_CACHE.pop(token, None)
-        if bar is not None:
-            bar.close()
-    seconds = time.perf_counter() - start
-    extra = {k: v / film.spp for k, v in film.extra.items()} if film.spp else {}
-    return Render(image=film.image(size), spp=film.spp, seconds=seconds, interrupted=interrupted,
-                  variance=film.variance(size), rays=film.rays, scene=scene.name, integrator=method.name,
-                  sampler=sampler, res=size, max_depth=max_depth, heuristic=heuristic, batch_spp=sizes[0],
-                  workers=workers, precision=precision, options=opts, extra=extra)
+    plan, allocation = _plan(scene, method, spp, res, sampler, allocation, settings)
+    with _Render(plan, allocation, rng) as run:
+        return allocation.render(run)

@@ -260,7 +260,7 @@ class Emitters:
         ks = [0] if li is None else np.unique(li)
         for k in ks:
             sel = slice(None) if li is None else np.flatnonzero(li == k)
-            w[:, sel], dist[sel], s = _spherical_rectangle_soa(u[0, sel], u[1, sel], p[:, sel],
+            w[:, sel], dist[sel], s = _spherical_rectangle_soa(u[:, sel], p[:, sel],
                                                               self.scene.light_origin[k], *self.rect[k])
             pdf[sel] = self._rect_pdf(int(k), p[:, sel], s)
         le = np.broadcast_to(self.radiance_soa[:, :1], (3, m)) if li is None else \
@@ -317,10 +317,6 @@ class Emitters:
 
 
 # -- light subpaths ------------------------------------------------------------
-
-#: :meth:`VisibleLights.image` by content digest (a few entries per process).
-_IMAGES: dict = {}
-
 
 class VisibleLights:
     """Area lights seen directly by the camera, integrated exactly over every pixel.
@@ -409,8 +405,10 @@ class VisibleLights:
         """``(W H, 3)``: per flat pixel ``i W + j``, the box-filtered radiance
         of the exactly handled lights, occlusion ignored (the pixel integral of ``g``).
 
-        Cached per process by content (camera, lights, resolution): every
-        batch of a render asks for it. Read-only.
+        Cached on the scene object, by content (camera, lights, resolution):
+        derived state of that (frozen) scene, so every batch of a render that
+        holds the scene reuses it and the cache lives and dies with the
+        scene (no module global). Read-only.
         """
         from ..scene import _film_res
 
@@ -421,13 +419,14 @@ class VisibleLights:
             *(self.scene.light_origin[k] for k in self.lights), *(self.scene.light_edge1[k] for k in self.lights),
             *(self.scene.light_edge2[k] for k in self.lights),
             *(self.scene.light_radiance[k] for k in self.lights)))).hexdigest()
-        img = _IMAGES.get(key)
+        images = self.scene.__dict__.setdefault("_visible_light_images", {})
+        img = images.get(key)
         if img is None:
             img = self._image(width, height)
             img.flags.writeable = False
-            if len(_IMAGES) >= 8:
-                _IMAGES.pop(next(iter(_IMAGES)))
-            _IMAGES[key] = img
+            if len(images) >= 8:
+                images.pop(next(iter(images)))
+            images[key] = img
         return img
 
     def _image(self, width, height):

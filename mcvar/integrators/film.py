@@ -15,6 +15,7 @@ import numpy as np
 
 from ..scene import Scene
 from ..tracer import Tracer
+from .settings import PathSettings
 
 __all__ = ["BatchJob", "BatchResult", "Film", "Render", "splat", "camera_result"]
 
@@ -42,12 +43,17 @@ class BatchJob:
         Column layout: :mod:`mcvar.integrators.stream`.
     rng : numpy.random.Generator
         This batch's own stream (dimensions beyond ``u``).
-    max_depth : int or None
-    heuristic : str
+    settings : PathSettings
+        The render's path settings (``max_depth``, ``heuristic``, ...;
+        :class:`~mcvar.integrators.settings.PathSettings`).
     options : dict
         The method's options with defaults filled in.
     prepared : object or None
         What the method's ``prepare`` returned.
+    pixels : ndarray of int or None
+        The flat pixel indices (row-major, ``y W + x``) this batch samples,
+        ``spp`` samples each (adaptive allocation: the pixels of one
+        allocation level); None: every pixel of the image.
     """
 
     scene: Scene
@@ -57,14 +63,28 @@ class BatchJob:
     sampler: str
     u: np.ndarray | None
     rng: np.random.Generator
-    max_depth: int | None
-    heuristic: str
+    settings: PathSettings = field(default_factory=PathSettings)
     options: dict = field(default_factory=dict)
     prepared: object | None = None
+    pixels: np.ndarray | None = None
 
     @property
     def n_pixels(self) -> int:
-        return self.res[0] * self.res[1]
+        """Pixels this batch samples (``W H`` unless :attr:`pixels` is given)."""
+        return self.res[0] * self.res[1] if self.pixels is None else int(self.pixels.shape[0])
+
+    @property
+    def pixel_index(self) -> np.ndarray:
+        """The flat indices of the pixels this batch samples, (n_pixels,)."""
+        return np.arange(self.res[0] * self.res[1]) if self.pixels is None else self.pixels
+
+    @property
+    def max_depth(self) -> int | None:
+        return self.settings.max_depth
+
+    @property
+    def heuristic(self) -> str:
+        return self.settings.heuristic
 
 
 @dataclass
@@ -131,46 +151,67 @@ class Film:
         ``n_b`` samples and ``N = sum n_b``, ``s^2 = sum_b n_b (I_b - I)^2 /
         (B - 1)`` (unbiased for ``var(I_b) = sigma^2 / n_b``), so that
         ``variance / spp`` is the variance of the image for either kind.
+
+    Attributes
+    ----------
+    counts : ndarray of int64, (n_pixels,)
+        Samples added per pixel (camera batches of a subset of pixels add
+        only to theirs: adaptive allocation).
+    spp : int
+        Samples per pixel added by whole-image batches (the common count;
+        for a film of pixel subsets, ``counts`` tells).
     """
 
     def __init__(self, n_pixels: int, per_sample: bool):
         self.per_sample = per_sample
         self.total = np.zeros((n_pixels, 3))
         self.total_sq = np.zeros((n_pixels, 3))
+        self.counts = np.zeros(n_pixels, dtype=np.int64)
         self.spp = 0
         self.batches = 0
         self.rays = 0
         self.extra: dict = {}
 
-    def add(self, result: BatchResult, spp: int) -> None:
-        """Add one batch of ``spp`` samples per pixel."""
-        self.total += result.sum
-        if self.per_sample:
-            if result.sum_sq is None:
-                raise ValueError("a camera / first_hit batch must return sum_sq")
-            self.total_sq += result.sum_sq
+    def add(self, result: BatchResult, spp: int, pixels=None) -> None:
+        """Add one batch of ``spp`` samples per pixel (of every pixel, or of ``pixels``)."""
+        if pixels is not None:
+            if not self.per_sample or result.sum_sq is None:
+                raise ValueError("batches of a subset of pixels must be camera batches with sum_sq")
+            self.total[pixels] += result.sum
+            self.total_sq[pixels] += result.sum_sq
+            self.counts[pixels] += spp
         else:
-            self.total_sq += result.sum * result.sum / spp     # n_b I_b^2
+            self.total += result.sum
+            if self.per_sample:
+                if result.sum_sq is None:
+                    raise ValueError("a camera / first_hit batch must return sum_sq")
+                self.total_sq += result.sum_sq
+            else:
+                self.total_sq += result.sum * result.sum / spp     # n_b I_b^2
+            self.counts += spp
+            self.spp += spp
         for key, value in result.extra.items():
             self.extra[key] = self.extra[key] + value if key in self.extra else np.array(value, dtype=np.float64)
-        self.spp += spp
         self.batches += 1
         self.rays += int(result.rays)
 
     def image(self, res) -> np.ndarray:
+        """Per-pixel mean (H, W, 3); 0 where a pixel has no samples."""
         w, h = res
-        if not self.spp:
-            return np.zeros((h, w, 3))
-        return (self.total / self.spp).reshape(h, w, 3)
+        n = np.maximum(self.counts, 1)[:, None]
+        return (self.total / n).reshape(h, w, 3)
 
     def variance(self, res) -> np.ndarray | None:
-        """Per-sample variance (H, W, 3), or None when it cannot be estimated."""
+        """Per-sample variance (H, W, 3), or None when it cannot be estimated
+        (camera: a pixel with fewer than 2 samples has variance 0 unless every
+        pixel has, then None)."""
         w, h = res
-        n = self.spp
+        n = self.counts[:, None]
         if self.per_sample:
-            if n < 2:
+            if self.counts.max(initial=0) < 2:
                 return None
-            var = (self.total_sq - self.total * self.total / n) / (n - 1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                var = np.where(n > 1, (self.total_sq - self.total * self.total / n) / (n - 1), 0.0)
         else:
             if self.batches < 2:
                 return None
@@ -201,8 +242,9 @@ class Render:
         an upper-bound-like indicator.
     rays : int
         Rays traced (camera, extension and shadow rays).
-    scene, integrator, sampler, res, max_depth, heuristic, batch_spp, workers, precision
-        The settings used (``res`` is ``(W, H)``).
+    scene, method, sampler, res, max_depth, heuristic, batch_spp, workers, precision
+        The settings used (``res`` is ``(W, H)``; ``integrator`` is an alias
+        of ``method``).
     options : dict
         The method's options (defaults filled in).
     extra : dict
@@ -216,7 +258,7 @@ class Render:
     variance: np.ndarray | None
     rays: int
     scene: str
-    integrator: str
+    method: str
     sampler: str
     res: tuple
     max_depth: int | None
@@ -226,6 +268,11 @@ class Render:
     precision: str
     options: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+
+    @property
+    def integrator(self) -> str:
+        """Alias of :attr:`method` (the name before issue 20)."""
+        return self.method
 
     @property
     def standard_error(self) -> np.ndarray | None:

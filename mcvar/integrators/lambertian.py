@@ -5,7 +5,8 @@ The same estimator as the general loop of :mod:`mcvar.integrators.path`
 (the same sample stream layout, MIS weights, Russian roulette and shadow
 rays), with the BSDF written out: ``f = albedo / pi``, ``p = cos theta /
 pi`` (so the sampling weight is ``albedo``), sampled by Malley's method
-through the warps' unchecked kernel on arrays built here. Because no
+through :func:`mcvar.integrators.directions.sample_directions` (the seam
+both loops share). Because no
 material needs its own call, the rays are not sorted by material; the
 :class:`~mcvar.integrators.state.PathState` block is kept in the ray
 geometry's precision, so compaction is one ``np.take`` of half the bytes.
@@ -18,10 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..estimators import balance_heuristic, power_heuristic
-from ..warps import _square_to_cosine_hemisphere_unchecked
+from .directions import Vertex, sample_directions
 from .state import PathState, Transport, dot, roulette, shadow_rays
-from .stream import BSDF, LIGHT
+from .stream import LIGHT
 
 __all__ = ["trace_lambertian"]
 
@@ -44,9 +44,7 @@ class _Tables:
         self.n_l = [float(c) for c in em.normal_soa[:, 0]]
         self.pdf_area = float(em.pdf_area[0])
         #: exponent of the MIS heuristic (power 2, balance 1), written out below
-        self.mis_beta = 2.0 if tr.weight_fn is power_heuristic else 1.0
-        if tr.weight_fn not in (power_heuristic, balance_heuristic):
-            raise ValueError("the Lambertian kernel writes out the power and balance heuristics only")
+        self.mis_beta = {"power": 2.0, "balance": 1.0}[tr.settings.heuristic]
 
 
 def trace_lambertian(tr: Transport, o, d) -> None:
@@ -87,18 +85,13 @@ def trace_lambertian(tr: Transport, o, d) -> None:
             _next_event(tr, lt, state, k, p, fn, sgn, prim)
         if k + 1 > tr.limit or (k + 1 == tr.limit and not tr.bsdf_hits):
             break
-        ub = stream.vertex(k, BSDF, 2, state.idx, dt)
-        x, y, z = _square_to_cosine_hemisphere_unchecked(ub[0], ub[1], np.float32)
-        pdf = y * (1.0 / np.pi)
-        ok = y > 0.0
-        ok &= sgn != 0.0
-        y *= sgn
+        # d is not needed any more: the new directions are written into it
+        dirs = sample_directions(Vertex(k, state.idx, frame=(fs, fn, ft), sgn=sgn, albedo=lt.albedo, prim=prim),
+                                 stream, out=state.d)
         beta = state.beta
-        beta *= np.take(lt.albedo, prim, axis=1)
-        beta *= ok
-        wi = np.multiply(fs, x, out=state.d)        # d is not needed any more
-        wi += fn * y
-        wi += ft * z
+        beta *= dirs.weight                # in place (``state.beta[...] *=`` would copy the block onto itself)
+        pdf = dirs.pdf
+        del dirs                           # free the weights now (allocator reuse)
         alive = roulette(tr, state, k, np.ones(m, dtype=bool))
         # leave on wi's side of the surface: sign(wi . n_g) = sgn for a valid sample
         np.multiply(fn, sgn * tr.eps, out=state.o)

@@ -633,4 +633,7 @@ def _check_light(scene, options):
 register(Method(
     "light", "splat", run_light_batch,
     "light (particle) tracing: light paths, every vertex connected to the pinhole and splatted",
-    check_scene=_check_light))
+    check_scene=_check_light, chart_row="Path Tracing",
+    theory=("yes", "yes", "light tracing is path tracing started at the lights: with Russian roulette unbiased "
+                          "and consistent"),
+    stream_dims=0))

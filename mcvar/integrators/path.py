@@ -35,51 +35,38 @@ it cannot run is a ``ValueError`` naming what the scene lacks).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
-from .._validation import as_rng, check_choice, check_count
-from ..estimators import balance_heuristic, power_heuristic
+from .._validation import as_rng
 from ..tracer import Tracer
-from .emitters import VISIBLE_LIGHTS, Emitters, VisibleLights
+from .directions import Vertex, sample_directions
+from .emitters import Emitters, VisibleLights
 from .film import BatchJob, BatchResult, camera_result
 from .lambertian import trace_lambertian
-from .registry import Method, register
-from .state import (RR_MAX_DEPTH, RR_START_DEPTH, PathState, SceneTables, Transport, dot, roulette,
-                    shadow_rays)
-from .stream import BSDF, CAMERA_DIMS, LIGHT, LIGHT_SELECT, SampleStream, camera_rays
+from .registry import Method, pop_method_name, register
+from .settings import HEURISTICS, KERNELS, PATH_OPTIONS, STRATEGIES, PathSettings
+from .state import PathState, SceneTables, Transport, dot, roulette, shadow_rays
+from .stream import CAMERA_DIMS, LIGHT, LIGHT_SELECT, SampleStream, camera_rays
 
 __all__ = ["HEURISTICS", "KERNELS", "trace_paths", "trace_camera_paths"]
 
-#: MIS heuristics by name.
-HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
-#: Values of the ``kernel`` option.
-KERNELS = ("auto", "general", "lambertian")
+
+def _method_and_settings(options: dict, settings, where: str):
+    """``(method name, PathSettings)`` from the keywords of :func:`trace_paths`."""
+    options = dict(options)
+    name = pop_method_name(options, options.pop("method", None), where)
+    if name not in STRATEGIES:
+        raise ValueError(f"method must be one of {tuple(STRATEGIES)}; got {name!r}")
+    settings = PathSettings.from_keywords(options, settings=settings, where=where)
+    if options:
+        raise TypeError(f"{where}() got unexpected keyword argument(s) {', '.join(map(repr, options))}")
+    return name, settings
 
 
-@dataclass(frozen=True)
-class _Mode:
-    nee: bool           # connect to lights (next-event estimation)
-    bsdf_hits: bool     # count emission found by BSDF sampling after the first segment
-    mis: bool           # weight the two strategies by the heuristic (else weight 1)
-    depth: int | None   # the method's own depth (direct*: 2)
-
-
-_MODES = {
-    "direct": _Mode(True, True, True, 2),
-    "direct_light": _Mode(True, False, False, 2),
-    "direct_bsdf": _Mode(False, True, False, 2),
-    "path": _Mode(True, True, True, None),
-    "path_bsdf": _Mode(False, True, False, None),
-}
-
-
-def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_depth: int | None = None,
-                heuristic: str = "power", rng=None, tracer: Tracer | None = None, kernel: str = "auto",
-                light_sampling: str = "area", rr_depth: int | None = None, visible_lights: str = "sampled",
-                rr_threshold: float = 1.0):
+def trace_paths(scene, origins, directions, u, *, rng=None, tracer: Tracer | None = None,
+                settings: PathSettings | None = None, **options):
     """Radiance carried back along each camera ray: the wavefront core.
 
     Parameters
@@ -94,36 +81,23 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
         roulette 4, emitter choice 5). Columns beyond ``D`` come from
         ``rng``; with ``D >= 6 (max_depth - 1)`` a path uses no ``rng`` at
         all: it is a pure function of its row of ``u``.
-    integrator : str
-        ``path``, ``path_bsdf``, ``direct``, ``direct_light`` or ``direct_bsdf``.
-    max_depth : int or None
-        Maximum number of path segments; None: Russian roulette.
-    heuristic : {'power', 'balance'}
     rng : None, int, SeedSequence or Generator
     tracer : Tracer, optional
         Reuse a tracer (its precision); default float32.
-    kernel : {'auto', 'general', 'lambertian'}
-    light_sampling : {'area', 'solid_angle'}
-        How NEE samples quad lights
-        (:data:`~mcvar.integrators.emitters.LIGHT_SAMPLING`); the MIS weight
-        of a light hit by BSDF sampling uses the same density.
-    rr_depth : int, optional
-        Russian roulette starts once a path has this many segments (default
-        :data:`~mcvar.integrators.state.RR_START_DEPTH`); unbiased for any
-        value, later is more work and less variance.
-    rr_threshold : float in (0, 1]
-        Russian roulette survival ``min(0.95, max(beta) / rr_threshold)``
-        (:func:`~mcvar.integrators.state.roulette`); 1 (default) is pbrt's
-        rule, smaller values a weight window: paths play only once their
-        throughput falls below it, longer paths and less variance.
-    visible_lights : {'sampled', 'exact'}
-        ``exact``: the rays are camera rays, and the emission of the lights
-        :class:`~mcvar.integrators.emitters.VisibleLights` handles, seen
-        directly, is left out (``f - g``): the caller adds
-        ``VisibleLights(scene).image(res)[pixel]`` to each ray's radiance
-        (as :func:`mcvar.integrators.render` and
-        :func:`mcvar.adaptive.render_adaptive` do), a control variate that
-        removes the variance of the light's edge in the image.
+    settings : PathSettings, optional
+        Depth, MIS heuristic, kernel, light sampling, Russian roulette and
+        visible lights (:class:`~mcvar.integrators.settings.PathSettings`);
+        or give its fields as keywords (``max_depth=3, kernel='general'``).
+        With ``visible_lights='exact'`` the rays must be camera rays: the
+        emission of the lights :class:`~mcvar.integrators.emitters.VisibleLights`
+        handles, seen directly, is left out (``f - g``) and the caller adds
+        ``VisibleLights(scene).image(res)[pixel]`` to each ray's radiance (as
+        :func:`mcvar.integrators.render` does), a control variate that removes
+        the variance of the light's edge in the image.
+    **options
+        ``method`` (alias ``integrator``): ``path`` (default), ``path_bsdf``,
+        ``direct``, ``direct_light`` or ``direct_bsdf``; and the fields of
+        :class:`PathSettings` when ``settings`` is not given.
 
     Returns
     -------
@@ -161,35 +135,29 @@ def trace_paths(scene, origins, directions, u, *, integrator: str = "path", max_
     .. [2] M. Pharr, W. Jakob, G. Humphreys, "Physically Based Rendering:
        From Theory to Implementation", 4th ed., MIT Press 2023, ch. 13.
     """
-    check_choice(integrator, "integrator", tuple(_MODES))
-    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
-    check_choice(kernel, "kernel", KERNELS)
+    name, settings = _method_and_settings(options, settings, "trace_paths")
     rng = as_rng(rng)
-    check_choice(visible_lights, "visible_lights", VISIBLE_LIGHTS)
-    rr_threshold = _check_rr_threshold(rr_threshold)
-    if visible_lights == "exact" and not _all_at(origins, scene.camera.position):
+    if settings.visible_lights == "exact" and not _all_at(origins, scene.camera.position):
         raise ValueError("visible_lights='exact' needs camera rays: every origin at scene.camera.position")
     tracer = tracer if tracer is not None else Tracer(scene)
     stream = SampleStream(None if u is None else np.asarray(u, dtype=np.float64), rng, camera=False)
     return _trace(scene, tracer, np.asarray(origins, dtype=np.float64).T,
-                  np.asarray(directions, dtype=np.float64).T, stream, integrator, max_depth, heuristic, kernel,
-                  light_sampling, rr_depth, visible_lights, rr_threshold)
+                  np.asarray(directions, dtype=np.float64).T, stream, name, settings)
 
 
-def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_depth: int | None = None,
-                       heuristic: str = "power", rng=None, tracer: Tracer | None = None,
-                       kernel: str = "auto"):
+def trace_camera_paths(scene, res, pixel, u, *, rng=None, tracer: Tracer | None = None,
+                       settings: PathSettings | None = None, **options):
     """Radiance of camera paths through ``pixel`` given their whole sample vectors ``u``.
 
     ``u`` (n, D): columns 0-1 the position inside the pixel, then the
     vertex columns of :func:`trace_paths`. With ``D >= stream_dim(max_depth)``
     (:func:`mcvar.integrators.stream.stream_dim`) each path is a pure
     function of ``(pixel, u)``: the primary sample space of Metropolis
-    light transport. Returns ``(radiance (n, 3), rays)``.
+    light transport. ``settings`` and ``**options`` (``method``, the fields
+    of :class:`PathSettings`) as for :func:`trace_paths`. Returns
+    ``(radiance (n, 3), rays)``.
     """
-    check_choice(integrator, "integrator", tuple(_MODES))
-    check_choice(heuristic, "heuristic", tuple(HEURISTICS))
-    check_choice(kernel, "kernel", KERNELS)
+    name, settings = _method_and_settings(options, settings, "trace_camera_paths")
     u = np.asarray(u, dtype=np.float64)
     if u.ndim != 2 or u.shape[1] < CAMERA_DIMS:
         raise ValueError(f"u must have shape (n, D) with D >= {CAMERA_DIMS}; got {u.shape}")
@@ -197,29 +165,19 @@ def trace_camera_paths(scene, res, pixel, u, *, integrator: str = "path", max_de
     d = scene.camera.ray_directions_soa(res, pixel, u[:, :CAMERA_DIMS])
     o = np.broadcast_to(scene.camera.position[:, None], d.shape)
     stream = SampleStream(u, as_rng(rng))
-    return _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel)
+    return _trace(scene, tracer, o, d, stream, name, settings)
 
 
-def _trace(scene, tracer, o, d, stream, integrator, max_depth, heuristic, kernel, light_sampling="area",
-           rr_depth=None, visible_lights="sampled", rr_threshold=1.0):
-    """The loops' common entry: rays SoA (3, n)."""
-    mode = _MODES[integrator]
-    if mode.depth is not None:
-        max_depth = mode.depth
-    emitters = Emitters(scene, light_sampling)
-    rr_start = RR_START_DEPTH if rr_depth is None else check_count(rr_depth, "rr_depth")
-    tables = SceneTables(scene, tracer, emitters)
-    if kernel == "lambertian":
-        missing = tables.lambertian_missing(emitters)
+def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings):
+    """The loops' common entry: rays SoA (3, n), the method ``name``'s strategies."""
+    tables = SceneTables(scene, tracer, Emitters(scene, settings.light_sampling))
+    if settings.kernel == "lambertian":
+        missing = tables.lambertian_missing(tables.emitters)
         if missing:
             raise ValueError(f"kernel='lambertian' needs {missing}; scene {scene.name!r} does not have it")
-    limit = RR_MAX_DEPTH if max_depth is None else max_depth
-    tr = Transport(scene, tracer, emitters, tables, o.shape[1], nee=mode.nee, bsdf_hits=mode.bsdf_hits,
-                   mis=mode.mis, weight_fn=HEURISTICS[heuristic], limit=limit, roulette=max_depth is None,
-                   stream=stream, rr_start=rr_start, rr_threshold=rr_threshold)
-    if visible_lights == "exact":
-        tr.visible = VisibleLights(scene)
-    if tables.lambertian and kernel != "general":
+    tr = Transport(scene, tracer, o.shape[1], strategies=STRATEGIES[name], settings=settings, stream=stream,
+                   tables=tables)
+    if tables.lambertian and settings.kernel != "general":
         trace_lambertian(tr, o, d)
     else:
         _trace_general(tr, o, d)
@@ -268,28 +226,18 @@ def _trace_general(tr: Transport, o, d) -> None:
         fs, fn, ft = frame
         wo_l = np.stack([dot(wo, fs), dot(wo, fn), dot(wo, ft)])
         # -- next-event estimation (adds paths of k + 1 segments)
+        vertex = Vertex(k, state.idx, frame, wo_local=wo_l, groups=groups, materials=materials)
         if tr.nee and k + 1 <= tr.limit:
-            _next_event(tr, state, k, groups, p, ng, frame, wo_l, prim)
+            _next_event(tr, state, vertex, p, ng, prim)
         # -- continue the path by BSDF sampling? (without bsdf_hits only
         # through delta lobes, whose emission light sampling cannot find)
         last = k + 1 == tr.limit and not tr.bsdf_hits
         if k + 1 > tr.limit or (last and not (tables.any_delta or tables.hidden_emitters)):
             break
-        ub = stream.vertex(k, BSDF, 2, state.idx)
-        wi_l = np.empty((3, m))
-        weight = np.empty((3, m))
-        pdf = np.empty(m)
-        for mi, a, b in groups:
-            wi_g, weight_g, pdf_g, delta_g = materials[mi].sample(wo_l[:, a:b].T, ub[:, a:b].T,
-                                                                  return_delta=True)
-            wi_l[:, a:b] = wi_g.T
-            weight[:, a:b] = weight_g.T
-            # per sample: a delta lobe's emission gets MIS weight 1 (pdf inf)
-            pdf[a:b] = np.where(delta_g, np.inf, pdf_g)
-        state.beta[...] *= weight
-        wi = fs * wi_l[0]
-        wi += fn * wi_l[1]
-        wi += ft * wi_l[2]
+        dirs = sample_directions(vertex, stream)
+        state.beta[...] *= dirs.weight
+        wi, pdf = dirs.wi, dirs.pdf
+        del dirs                           # free the weights now (allocator reuse)
         keep_all = not last or tables.hidden_emitters
         alive = roulette(tr, state, k, np.ones(m, dtype=bool) if keep_all else np.isinf(pdf))
         side = np.sign(dot(wi, ng))
@@ -302,13 +250,14 @@ def _trace_general(tr: Transport, o, d) -> None:
             state.take(np.flatnonzero(alive))
 
 
-def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, prim) -> None:
+def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) -> None:
     """Connect every shading point to an emitter; add the unoccluded contributions.
 
-    SoA arrays (3, m), rows sorted by material (``groups``: material, start, end).
+    SoA arrays (3, m), rows sorted by material (``vertex.groups``: material, start, end).
     """
     m = p.shape[1]
     idx = state.idx
+    k, groups, frame, wo_l = vertex.k, vertex.groups, vertex.frame, vertex.wo_local
     u = tr.stream.vertex(k, LIGHT, 2, idx)
     u_sel = tr.stream.vertex(k, LIGHT_SELECT, 1, idx)[0] if tr.emitters.n_emitters > 1 else None
     w, dist, le, pdf_l, light = tr.emitters.sample_li(p, u, u_sel)
@@ -353,11 +302,8 @@ def _next_event(tr: Transport, state: PathState, k, groups, p, ng, frame, wo_l, 
 def run_path_batch(name: str, job: BatchJob) -> BatchResult:
     """``run_batch`` of the path-tracing and direct-lighting methods (``partial(run_path_batch, name)``)."""
     pixel, o, d, stream = camera_rays(job, soa=True)
-    exact = job.options["visible_lights"]
-    radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.max_depth, job.heuristic,
-                            job.options["kernel"], job.options["light_sampling"], job.options["rr_depth"],
-                            exact, job.options["rr_threshold"])
-    if exact == "exact":
+    radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.settings)
+    if job.settings.visible_lights == "exact":
         radiance += VisibleLights(job.scene).image(job.res)[pixel]
     return camera_result(job, radiance, rays, name)
 
@@ -371,24 +317,11 @@ def _all_at(points, position) -> bool:
     return bool(np.all(a == position))
 
 
-def _check_rr_threshold(value) -> float:
-    """``rr_threshold`` as a float in (0, 1]; ValueError/TypeError naming it otherwise."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"rr_threshold must be a number in (0, 1]; got {type(value).__name__}")
-    value = float(value)
-    if not 0.0 < value <= 1.0:
-        raise ValueError(f"rr_threshold must lie in (0, 1]; got {value}")
-    return value
-
-
 def _check_kernel(scene, options) -> None:
-    check_choice(options["kernel"], "kernel", KERNELS)
-    Emitters(scene, options["light_sampling"])    # unknown name or a non-rectangular light: ValueError
-    if options["rr_depth"] is not None:
-        check_count(options["rr_depth"], "rr_depth")
-    check_choice(options["visible_lights"], "visible_lights", VISIBLE_LIGHTS)
-    _check_rr_threshold(options["rr_threshold"])
-    if options["kernel"] == "lambertian":
+    """``check_scene`` of the path methods: valid settings, and a scene the kernel and light sampling can run."""
+    settings = PathSettings(**{k: options[k] for k in PATH_OPTIONS})
+    Emitters(scene, settings.light_sampling)    # a non-rectangular light with solid_angle: ValueError
+    if settings.kernel == "lambertian":
         emitters = Emitters(scene)
         missing = SceneTables(scene, Tracer(scene), emitters).lambertian_missing(emitters)
         if missing:
@@ -407,10 +340,18 @@ _SUMMARIES = {
 #: other modes have no row there. What mcvar measures is in `mcvar chart`.
 _LECTURE = {"path": ("almost", "almost")}
 
-for _name, _mode in _MODES.items():
+_DEFAULTS = PathSettings()
+for _name, _mode in STRATEGIES.items():
     register(Method(_name, "camera", partial(run_path_batch, _name), _SUMMARIES[_name],
-                    options={"kernel": "auto", "light_sampling": "area", "rr_depth": None,
-                             "visible_lights": "sampled", "rr_threshold": 1.0},
+                    options={key: getattr(_DEFAULTS, key) for key in PATH_OPTIONS},
                     check_scene=_check_kernel,
                     lecture=_LECTURE.get(_name),
-                    fixed_depth=_mode.depth))
+                    fixed_depth=_mode.depth,
+                    **(dict(chart_row="Path Tracing",
+                            theory=("yes", "yes", "with Russian roulette path tracing is unbiased (and so "
+                                    "consistent), not 'almost': every path length is kept, its probability "
+                                    "divided out"),
+                            chart_depths={3: ("no", "no", "a fixed depth (3) drops the light of longer paths: "
+                                              "biased, and the MSE levels off at that bias, so not consistent "
+                                              "either")})
+                       if _name == "path" else {})))

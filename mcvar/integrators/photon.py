@@ -53,18 +53,19 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import as_rng, check_count, check_positive
+from .._validation import as_rng, check_budget, check_count, check_positive
 from ..geometry import Frame
 from ..scene import Scene
 from ..tracer import Tracer
 from .emitters import LightOrigins, sample_le
 from .film import BatchJob, BatchResult, camera_result
+from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import camera_rays
 
 __all__ = ["PhotonBatch", "PhotonMap", "VisiblePoints", "trace_photons", "build_photon_map",
            "visible_points", "photon_map_radiance", "check_photon_scene", "check_photon_method_scene",
-           "PHOTONS_PER_BATCH", "run_photon_batch"]
+           "PHOTONS_PER_BATCH", "BYTES_PER_PHOTON", "check_photon_budget", "run_photon_batch"]
 
 #: Photons emitted per batch (memory bound of tracing; about 60 MB of temporaries).
 PHOTONS_PER_BATCH = 1 << 16
@@ -76,6 +77,24 @@ RR_MAX_DEPTH = 1024
 POINTS_PER_CHUNK = 4096
 #: (visible point, photon) pairs per chunk of a fixed-radius estimate (~100 MB of temporaries).
 PAIRS_PER_CHUNK = 1 << 19
+#: Peak bytes per emitted photon while a photon map is built: the stored
+#: photon's 74 bytes twice (the batches and their concatenation) and the k-d
+#: tree's 32, for one stored photon per emitted one (every photon of a closed
+#: scene lands at least once; more bounces store more).
+BYTES_PER_PHOTON = 2 * 74 + 32
+#: Bytes of temporaries per (visible point, photon) pair of a density estimate
+#: (PAIRS_PER_CHUNK pairs take about 100 MB).
+BYTES_PER_PAIR = 200
+
+
+def check_photon_budget(photons: int, name: str = "photons") -> int:
+    """``photons`` (emitted photons of one map, or of one SPPM iteration) checked
+    against the memory budget (:func:`mcvar._validation.check_budget`):
+    a map of them needs at least :data:`BYTES_PER_PHOTON` each."""
+    photons = check_count(photons, name)
+    check_budget(name, photons, float(photons) * BYTES_PER_PHOTON, per_unit=BYTES_PER_PHOTON,
+                 what="the photon map: one stored photon per emitted photon at least")
+    return photons
 
 
 def check_photon_scene(scene: Scene) -> None:
@@ -295,7 +314,11 @@ class PhotonMap:
 
 def build_photon_map(scene: Scene, n_photons: int, *, rng=None, tracer: Tracer | None = None,
                      max_depth: int | None = None, batch: int = PHOTONS_PER_BATCH) -> PhotonMap:
-    """Trace ``n_photons`` (:func:`trace_photons`) and store them in a ``cKDTree``."""
+    """Trace ``n_photons`` (:func:`trace_photons`) and store them in a ``cKDTree``.
+
+    ``n_photons`` whose map cannot fit the memory budget
+    (:data:`BYTES_PER_PHOTON` each) is a ``ValueError`` before any tracing."""
+    check_photon_budget(n_photons, "n_photons")
     start = time.perf_counter()
     parts = list(trace_photons(scene, n_photons, rng=rng, tracer=tracer, max_depth=max_depth, batch=batch))
     if parts:
@@ -473,12 +496,18 @@ DEFAULT_K = 100
 
 
 def check_photon_options(options) -> None:
-    """Options shared by ``photon`` and ``sppm``: clear errors for bad values."""
-    check_count(options["photons"], "photons")
+    """Options shared by ``photon`` and ``sppm``: clear errors for bad values,
+    and counts whose memory cannot fit refused before anything is traced
+    (``sppm``'s photons are per iteration: more than one photon map holds is
+    refused too, since more iterations reach any photon count)."""
+    photons = check_photon_budget(options["photons"], "photons")
     if options.get("radius") is not None:
         check_positive(options["radius"], "radius")
     if options.get("k") is not None:
-        check_count(options["k"], "k")
+        k = check_count(options["k"], "k")
+        pairs = float(min(k, photons)) * POINTS_PER_CHUNK
+        check_budget("k", k, pairs * BYTES_PER_PAIR, per_unit=POINTS_PER_CHUNK * BYTES_PER_PAIR,
+                     what=f"the k nearest photons of {POINTS_PER_CHUNK} visible points at once")
         if options.get("radius") is not None:
             raise ValueError("give exactly one of k (nearest photons) and radius (fixed gather radius)")
     if "alpha" in options:
@@ -523,4 +552,9 @@ register(Method(
     "photon mapping (Jensen 1996): photons from the lights, density estimation at the first diffuse hit",
     options=dict(photons=1 << 17, k=None, radius=None),
     prepare=_prepare_photon, check_scene=check_photon_method_scene, uses_max_depth=False,
-    lecture=("yes", "no")))
+    lecture=("yes", "no"), chart_row="Photon Mapping",
+    # the chart: more photons at a fixed gather radius (the blur stays)
+    knob=scaled_knob("photons (x 2048, radius 40)", "photon", {"photons": (2048, 1)}, {"spp": 4, "radius": 40.0}),
+    theory=("no", "no", "at a fixed radius the density estimate keeps its blur whatever the photon count: "
+                        "photon mapping is consistent only progressively (sppm)"),
+    stream_dims=2))

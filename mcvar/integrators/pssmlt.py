@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_rng, check_choice, check_count, check_positive, check_probability
+from .._validation import as_rng, check_bool, check_choice, check_count, check_positive, check_probability, settings_with
 from ..envmap import LUMINANCE_WEIGHTS
-from ..mcmc import _walk
+from ..mcmc import _evaluate_chunked, _walk, check_walk_budget
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
@@ -49,7 +49,7 @@ from .path import trace_camera_paths
 from .registry import Method, register
 from .stream import CAMERA_DIMS, stream_dim
 
-__all__ = ["OPTIONS", "PssmltFilm", "pssmlt_film", "state_dim", "run_batch"]
+__all__ = ["OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_film", "state_dim", "run_batch"]
 
 #: The method's options and defaults. ``sigma`` and ``p_large`` as pbrt-v4
 #: (0.01, 0.3); 4096 chains run at once (a wavefront of 4096 paths per step:
@@ -129,11 +129,23 @@ def _splat(film, n_pix, payload, weight):
         film[:, c] += np.bincount(pix, weights=w * rgb[:, c], minlength=n_pix)
 
 
-def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heuristic: str = "power",
-                tracer=None, chains: int = OPTIONS["chains"], sigma: float = OPTIONS["sigma"],
-                p_large: float = OPTIONS["p_large"], n_bootstrap: int | None = OPTIONS["n_bootstrap"],
-                bootstrap: bool = OPTIONS["bootstrap"], splat: str = OPTIONS["splat"],
-                state_depth: int = OPTIONS["state_depth"]) -> PssmltFilm:
+@dataclass(frozen=True)
+class PssmltSettings:
+    """The settings of one PSSMLT run (:func:`pssmlt_film`'s keywords; defaults :data:`OPTIONS`)."""
+
+    max_depth: int | None = None
+    heuristic: str = "power"
+    chains: int = OPTIONS["chains"]
+    sigma: float = OPTIONS["sigma"]
+    p_large: float = OPTIONS["p_large"]
+    n_bootstrap: int | None = OPTIONS["n_bootstrap"]
+    bootstrap: bool = OPTIONS["bootstrap"]
+    splat: str = OPTIONS["splat"]
+    state_depth: int = OPTIONS["state_depth"]
+
+
+def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings: PssmltSettings | None = None,
+                **options) -> PssmltFilm:
     """Run ``chains`` PSSMLT chains for ``spp`` mutations per pixel on average.
 
     Parameters
@@ -143,6 +155,13 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
         ``(W, H)``.
     spp : float
         Mutations per pixel: ``n_steps = ceil(spp * W * H / chains)`` per chain.
+    settings : PssmltSettings, optional
+        The settings below as one record; the keywords ``max_depth``,
+        ``heuristic``, ``chains``, ``sigma``, ``p_large``, ``n_bootstrap``,
+        ``bootstrap``, ``splat`` and ``state_depth`` replace its fields.
+
+    Other Parameters
+    ----------------
     rng, max_depth, heuristic, tracer
         As in :func:`mcvar.integrators.trace_camera_paths` (``max_depth=None``:
         Russian roulette).
@@ -200,6 +219,10 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
     included). With ``max_depth <= state_depth`` every path is a pure
     function of the state.
     """
+    opts = settings_with(PssmltSettings, settings, options, "pssmlt_film")
+    max_depth, heuristic, chains, sigma, p_large = (opts.max_depth, opts.heuristic, opts.chains, opts.sigma,
+                                                    opts.p_large)
+    n_bootstrap, bootstrap, splat, state_depth = opts.n_bootstrap, opts.bootstrap, opts.splat, opts.state_depth
     rng = as_rng(rng)
     width, height = res
     n_pix = width * height
@@ -209,8 +232,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
     sigma = check_positive(sigma, "sigma")
     p_large = check_probability(p_large, "p_large")
     check_choice(splat, "splat", ("expected", "plain"))
-    if not isinstance(bootstrap, (bool, np.bool_)):
-        raise TypeError(f"bootstrap must be True or False; got {bootstrap!r}")
+    check_bool(bootstrap, "bootstrap")
     dim = state_dim(state_depth, max_depth)
     n_mut = max(1, int(round(spp * n_pix)))
     chains = min(chains, n_mut)
@@ -218,12 +240,13 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
     if n_bootstrap is None:
         n_bootstrap = max(4 * chains, n_mut // 4)
     n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
+    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth", dim_value=state_depth)
     tracer = tracer if tracer is not None else Tracer(scene)
     counter = [0]
     evaluate = _path_function(scene, res, tracer, max_depth, heuristic, rng, counter)
 
     cand = rng.random((n_bootstrap, dim))
-    fc, pc = evaluate(cand)
+    fc, pc = _evaluate_chunked(evaluate, cand)
     total = fc.sum()
     if not total > 0.0:
         raise ValueError(f"none of the {n_bootstrap} bootstrap paths carries light: cannot start the "
@@ -246,7 +269,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, max_depth=None, heur
         def visit(x, fx, px, y, fy, py, a, acc):
             _splat(film, n_pix, np.where(acc[:, None], py, px), np.ones(acc.shape[0]))
 
-    _, _, _, n_acc, n_done = _walk(evaluate, x, fx, px, n_steps, sigma, p_large, rng, visit=visit,
+    _, _, _, n_acc, n_done = _walk(evaluate, (x, fx, px), n_steps, (sigma, p_large), rng, visit=visit,
                                    thin=n_steps)
     done = chains * n_done / n_pix
     # image = b / spp * film  ->  sum = b * film, so that sum / spp is the image
@@ -269,16 +292,24 @@ def run_batch(job: BatchJob) -> BatchResult:
 
 
 def _check_options(scene, options) -> None:
-    check_count(options["chains"], "chains")
+    """``check_scene`` of ``pssmlt``: every option's type and value, and the
+    chains' and a given ``n_bootstrap``'s memory against the budget."""
+    chains = check_count(options["chains"], "chains")
     check_positive(options["sigma"], "sigma")
     check_probability(options["p_large"], "p_large")
     check_choice(options["splat"], "splat", ("expected", "plain"))
-    check_count(options["state_depth"], "state_depth")
-    if options["n_bootstrap"] is not None:
-        check_count(options["n_bootstrap"], "n_bootstrap")
+    check_bool(options["bootstrap"], "bootstrap")
+    dim = state_dim(check_count(options["state_depth"], "state_depth"))
+    n_bootstrap = None if options["n_bootstrap"] is None else check_count(options["n_bootstrap"], "n_bootstrap")
+    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth",
+                      dim_value=options["state_depth"])
 
 
 register(Method("pssmlt", "chain", run_batch,
                 "primary-sample-space Metropolis light transport (Kelemen 2002): chains on the path "
                 "tracer's random numbers, expected-value splatting, bootstrap",
-                options=OPTIONS, check_scene=_check_options, lecture=("yes", "yes")))
+                options=OPTIONS, check_scene=_check_options, lecture=("yes", "yes"),
+                chart_row="Metropolis Light Transport",
+                theory=("yes", "no", "MLT's start-up bias: each chain starts from a bootstrap sample, not from "
+                                     "its stationary distribution; the bias vanishes as the chains grow"),
+                stream_dims=0))

@@ -63,23 +63,61 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .._validation import as_array, as_rng, check_choice, check_count, check_positive
+from .._validation import as_array, as_rng, check_budget, check_choice, check_count, check_positive, settings_with
 from ..bsdf import Lambertian
 from ..geometry import Frame
 from ..scene import Scene
 from ..tracer import Tracer
 from ..warps import _plane_coords, square_to_cosine_hemisphere, square_to_uniform_triangle
 from .film import BatchJob, BatchResult, camera_result
+from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import camera_rays
 
-__all__ = ["Patches", "FormFactors", "Radiosity", "check_diffuse", "mesh_patches",
-           "form_factors", "solve_radiosity", "radiosity", "SOLVERS", "run_radiosity_batch"]
+__all__ = ["Patches", "FormFactors", "Radiosity", "RadiositySettings", "check_diffuse", "mesh_patches",
+           "form_factors", "solve_radiosity", "radiosity", "SOLVERS", "run_radiosity_batch", "patch_count",
+           "BYTES_PER_PATCH", "BYTES_PER_NONZERO"]
 
 #: Linear solvers of :func:`solve_radiosity`.
 SOLVERS = ("jacobi", "direct")
 #: Rays cast per call of the tracer while estimating form factors (memory bound).
 RAYS_PER_CHUNK = 1 << 16
+#: Peak bytes per patch while meshing and estimating (corners, area, normal,
+#: index; two sides' emission, environment, ray counts and areas; the
+#: meshing temporaries of its triangle), rounded up.
+BYTES_PER_PATCH = 512
+#: Bytes per non-zero of the form-factor counts as the solve uses them (the
+#: CSR counts, ``C + C^T`` in COO and the CSR matrix: value and two indices each).
+BYTES_PER_NONZERO = 48
+
+
+def patch_count(scene: Scene, patch_size: float) -> int:
+    """Patches :func:`mesh_patches` makes of ``scene`` at ``patch_size``
+    (``sum k^2``, ``k = ceil(longest edge / patch_size)`` per triangle),
+    computed without meshing (in float: a huge count does not overflow)."""
+    h = check_positive(patch_size, "patch_size")
+    tri = scene.triangles
+    edges = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2).max(axis=1)
+    k = np.maximum(1.0, np.ceil(edges / h - 1e-9))
+    return int(min(float(np.sum(k * k)), 2.0 ** 62))
+
+
+def _check_patch_budget(n_patches: int, patch_size) -> None:
+    check_budget("patch_size", patch_size, float(n_patches) * BYTES_PER_PATCH,
+                 what=f"{n_patches} patches of {BYTES_PER_PATCH} bytes; a larger patch_size makes fewer")
+
+
+def _check_counts_budget(n_side: int, total_rays: float, rays_per_side: int, emitter_rays: int,
+                         patch_size) -> None:
+    """The counts matrix (one non-zero per ray at most, at most ``n_side^2``)
+    against the budget; the message blames the larger share of the rays
+    (``emitter_rays``, or ``rays_per_side`` from every side of ``patch_size``'s patches)."""
+    nonzero = min(float(total_rays), float(n_side) ** 2)
+    big = emitter_rays > float(n_side) * rays_per_side
+    label = f"emitter_rays={emitter_rays!r}" if big else \
+        f"rays_per_side={rays_per_side!r} on the patches of patch_size={patch_size!r}"
+    check_budget(label, None, nonzero * BYTES_PER_NONZERO,
+                 what=f"form-factor counts of {n_side} sides: up to one non-zero per ray, at most {n_side}^2")
 
 
 def check_diffuse(scene: Scene) -> None:
@@ -186,6 +224,7 @@ def mesh_patches(scene: Scene, patch_size: float) -> Patches:
     Patches
     """
     h = check_positive(patch_size, "patch_size")
+    _check_patch_budget(patch_count(scene, h), patch_size)
     tri = scene.triangles
     edges = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2).max(axis=1)
     k_all = np.maximum(1, np.ceil(edges / h - 1e-9).astype(np.int64))
@@ -337,8 +376,11 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
     is triangle ``t`` at point ``y`` lands on the patch :meth:`Patches.locate`
     gives, on the side its direction arrives from (front if
     ``d . n_t < 0``). Work is cut into chunks of about
-    :data:`RAYS_PER_CHUNK` rays, summed into the sparse counts chunk by chunk,
-    so memory is bounded by the chunk and the distinct side pairs hit.
+    :data:`RAYS_PER_CHUNK` rays (whole sides, or pieces of a side that has
+    more), summed into the sparse counts chunk by chunk, so memory is bounded
+    by the chunk and the distinct side pairs hit; a count matrix that could
+    exceed the memory budget (one non-zero per ray, at most ``(2n)^2``,
+    :data:`BYTES_PER_NONZERO` each) is a ``ValueError`` before any ray.
     """
     m = check_count(rays_per_side, "rays_per_side")
     m_e = check_count(emitter_rays, "emitter_rays")
@@ -353,17 +395,23 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         per_side[emitting] = np.maximum(m, np.ceil(m_e * share).astype(np.int64))
     ends = np.cumsum(per_side)
     total = int(ends[-1])
+    _check_counts_budget(n_side, total, m, m_e, patches.patch_size)
     counts = None
     env = np.zeros((n_side, 3))
     emission = np.zeros((n_side, 3))
     eps = float(scene.ray_epsilon)
-    first = 0
-    while first < n_side:
-        last = int(np.searchsorted(ends, ends[first] - per_side[first] + RAYS_PER_CHUNK, side="right"))
-        last = min(n_side, max(last, first + 1))
-        side = np.arange(first, last)
-        s = np.repeat(side, per_side[side])
-        first = last
+    pos = 0                                   # first ray of the chunk (rays numbered side after side)
+    while pos < total:
+        first = int(np.searchsorted(ends, pos, side="right"))
+        if pos == ends[first] - per_side[first]:   # whole sides, up to RAYS_PER_CHUNK rays
+            last = int(np.searchsorted(ends, pos + RAYS_PER_CHUNK, side="right"))
+            last = min(n_side, max(last, first + 1))
+            stop = min(int(ends[last - 1]), pos + RAYS_PER_CHUNK)   # a side of more rays: split
+        else:                                      # the rest of a split side
+            stop = min(int(ends[first]), pos + RAYS_PER_CHUNK)
+        s = np.searchsorted(ends, np.arange(pos, stop), side="right")
+        side = np.arange(s[0], s[-1] + 1)
+        pos = stop
         patch = s // 2
         sign = np.where(s % 2 == 0, 1.0, -1.0)
         b = square_to_uniform_triangle(rng.random((s.size, 2)))
@@ -374,14 +422,14 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         tri = patches.triangle[patch]
         le = scene.emission(tri, x, patches.normal[patch], -nrm)   # as a ray arriving on that side
         for ch in range(3):
-            emission[side, ch] = np.pi * np.bincount(s - side[0], le[:, ch], side.size) / per_side[side]
+            emission[side, ch] += np.pi * np.bincount(s - side[0], le[:, ch], side.size) / per_side[side]
         hit = tracer.intersect(x + eps * nrm, d)
         ok = hit.prim >= 0
         if not np.all(ok) and scene.environment is not None:
             l_env = np.zeros((s.size, 3))
             l_env[~ok] = scene.environment.radiance(d[~ok])
             for ch in range(3):
-                env[side, ch] = np.pi * np.bincount(s - side[0], l_env[:, ch], side.size) / per_side[side]
+                env[side, ch] += np.pi * np.bincount(s - side[0], l_env[:, ch], side.size) / per_side[side]
         prim = hit.prim[ok]
         y = x[ok] + hit.t[ok, None] * d[ok]
         j = patches.locate(prim, _barycentrics(scene, prim, y))
@@ -390,7 +438,7 @@ def form_factors(scene: Scene, patches: Patches, *, rays_per_side: int = 256, em
         chunk = sp.coo_matrix((np.ones(int(ok.sum())), (s[ok], 2 * j + back)), shape=(n_side, n_side)).tocsr()
         counts = chunk if counts is None else counts + chunk
         if progress is not None:
-            progress(int(ends[last - 1]), total)
+            progress(stop, total)
     counts.sum_duplicates()
     return FormFactors(counts=counts, rays_per_side=per_side, area=area, env_irradiance=env,
                        emission=emission, rays=total)
@@ -520,15 +568,35 @@ class Radiosity:
         return out
 
 
-def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 256,
-              emitter_rays: int = 1 << 20, solver: str = "jacobi",
-              tol: float = 1e-6, rng=None, tracer: Tracer | None = None, progress=None) -> Radiosity:
+@dataclass(frozen=True)
+class RadiositySettings:
+    """The mesh, form-factor and solver settings of :func:`radiosity` (its keywords)."""
+
+    patch_size: float = 40.0
+    rays_per_side: int = 256
+    emitter_rays: int = 1 << 20
+    solver: str = "jacobi"
+    tol: float = 1e-6
+
+
+def radiosity(scene: Scene, settings: RadiositySettings | None = None, *, rng=None, tracer: Tracer | None = None,
+              progress=None, **options) -> Radiosity:
     """Mesh, form factors and solve: the whole finite-element radiosity of ``scene``.
 
     Parameters
     ----------
     scene : Scene
         Lambertian triangles only (:func:`check_diffuse`).
+    settings : RadiositySettings, optional
+        ``patch_size``, ``rays_per_side``, ``emitter_rays``, ``solver`` and
+        ``tol`` as one record; those keywords replace its fields.
+    rng : None, int, SeedSequence or Generator
+    tracer : Tracer, optional
+    progress : callable, optional
+        As in :func:`form_factors`.
+
+    Other Parameters
+    ----------------
     patch_size : float
         Longest sub-edge of a patch (scene units; default 40: 1 950 patches,
         3 900 sides in the Cornell box).
@@ -536,16 +604,16 @@ def radiosity(scene: Scene, *, patch_size: float = 40.0, rays_per_side: int = 25
         As in :func:`form_factors`.
     solver, tol
         As in :func:`solve_radiosity`.
-    rng : None, int, SeedSequence or Generator
-    tracer : Tracer, optional
-    progress : callable, optional
-        As in :func:`form_factors`.
 
     Returns
     -------
     Radiosity
     """
+    opts = settings_with(RadiositySettings, settings, options, "radiosity")
+    patch_size, rays_per_side, emitter_rays, solver, tol = (opts.patch_size, opts.rays_per_side,
+                                                            opts.emitter_rays, opts.solver, opts.tol)
     check_diffuse(scene)
+    _check_radiosity_budget(scene, patch_size, rays_per_side, emitter_rays)
     start = time.perf_counter()
     patches = mesh_patches(scene, patch_size)
     ff = form_factors(scene, patches, rays_per_side=rays_per_side, emitter_rays=emitter_rays, rng=rng,
@@ -570,10 +638,22 @@ def _radiosity_options(options) -> None:
     check_choice(options["solver"], "solver", SOLVERS)
 
 
+def _check_radiosity_budget(scene, patch_size, rays_per_side, emitter_rays) -> None:
+    """The patches and the form-factor counts of a solve checked against the
+    memory budget, before anything is meshed or traced."""
+    m = check_count(rays_per_side, "rays_per_side")
+    m_e = check_count(emitter_rays, "emitter_rays")
+    n = patch_count(scene, patch_size)
+    _check_patch_budget(n, patch_size)
+    _check_counts_budget(2 * n, 2.0 * n * m + m_e, m, m_e, patch_size)
+
+
 def _check_radiosity(scene, options) -> None:
-    """``check_scene`` of ``radiosity``: Lambertian triangles only, valid options."""
+    """``check_scene`` of ``radiosity``: Lambertian triangles only, valid options
+    whose patches and form factors fit the memory budget."""
     _radiosity_options(options)
     check_diffuse(scene)
+    _check_radiosity_budget(scene, options["patch_size"], options["rays_per_side"], options["emitter_rays"])
 
 
 def _prepare_radiosity(scene, options, rng) -> Radiosity:
@@ -594,4 +674,12 @@ register(Method(
     "radiosity", "first_hit", run_radiosity_batch,
     "finite-element radiosity: patches, ray-cast form factors, (I - rho F) B = E, flat lookup at the first hit",
     options=dict(patch_size=70.0, rays_per_side=256, emitter_rays=1 << 18, solver="jacobi"),
-    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no")))
+    prepare=_prepare_radiosity, check_scene=_check_radiosity, uses_max_depth=False, lecture=("no", "no"),
+    chart_row="Finite Element Radiosity",
+    # the chart: patch size halves as the level quadruples; form-factor rays, emitter rays and pixel
+    # samples refined with it (at fixed spp the pixel-sampling noise would hide the shrinking mesh bias)
+    knob=scaled_knob("mesh refinement (patch size 280 / sqrt(level))", "radiosity",
+                     {"spp": (4, 1), "patch_size": (280.0, -0.5), "rays_per_side": (16, 0.5),
+                      "emitter_rays": (4096, 1)}),
+    theory=("yes", "no", "radiosity's mesh: piecewise-constant patches bias the image; the bias falls only as "
+                         "the mesh is refined (its knob here), never with spp")))

@@ -5,8 +5,8 @@
   plus the paths' indices, so that compaction is one ``np.take``.
 * :class:`SceneTables`: per-scene constants of the shading loop (material
   codes for the sort, shading frames of triangles, which materials flip).
-* :class:`Transport`: one trace's settings (which strategies, MIS
-  heuristic, depth limit) and its radiance accumulator; adds emission found
+* :class:`Transport`: one trace's strategies and
+  :class:`~mcvar.integrators.settings.PathSettings`, and its radiance accumulator; adds emission found
   by rays with its MIS weight.
 * :func:`shadow_rays`, :func:`roulette`.
 """
@@ -16,7 +16,8 @@ import numpy as np
 
 from ..bsdf import Lambertian
 from ..geometry import Frame
-from .emitters import Emitters
+from .emitters import Emitters, VisibleLights
+from .settings import HEURISTICS, PathSettings, Strategies
 from .stream import ROULETTE, SampleStream
 
 __all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot",
@@ -115,6 +116,7 @@ class SceneTables:
 
     def __init__(self, scene, tracer, emitters: Emitters):
         self.scene = scene
+        self.emitters = emitters
         self.materials = scene.materials
         self.n_mat = len(scene.materials)
         n_prim = scene.n_triangles + scene.n_spheres
@@ -175,47 +177,48 @@ class SceneTables:
 
 
 class Transport:
-    """One trace: the strategies used, the MIS heuristic, the output.
+    """One trace: the strategies used, its settings, the output.
 
     Parameters
     ----------
-    scene, tracer, emitters, tables
+    scene, tracer
         What the loop reads.
     n : int
         Number of paths (rows of :attr:`radiance`).
-    nee : bool
-        Connect to emitters (next-event estimation).
-    bsdf_hits : bool
-        Count emission found by BSDF sampling after the first segment.
-    mis : bool
-        Weight the two strategies by ``weight_fn`` (else weight 1 each).
-    weight_fn : callable
-        ``weight_fn(p_this, p_other)`` (power or balance heuristic).
-    limit : int
-        Maximum number of segments.
-    roulette : bool
-        Russian roulette from :data:`RR_START_DEPTH` segments on.
+    strategies : Strategies
+        Which estimators are combined (NEE, emission found by BSDF sampling,
+        MIS); ``strategies.depth`` overrides ``settings.max_depth``.
+    settings : PathSettings
+        Depth (None: Russian roulette from ``rr_depth`` segments on, default
+        :data:`RR_START_DEPTH`, survival ``min(0.95, max(beta) / rr_threshold)``),
+        MIS heuristic, light sampling, visible lights.
     stream : SampleStream
-    rr_start : int
-        Russian roulette from this many segments on (default :data:`RR_START_DEPTH`).
-    rr_threshold : float
-        Roulette survival ``q = min(0.95, max(beta) / rr_threshold)`` (default 1).
+    tables : SceneTables, optional
+        Built from ``scene``, ``tracer`` and ``settings.light_sampling`` if not given.
     """
 
-    def __init__(self, scene, tracer, emitters, tables, n, *, nee, bsdf_hits, mis, weight_fn, limit,
-                 roulette, stream: SampleStream, rr_start: int = RR_START_DEPTH, rr_threshold: float = 1.0):
+    def __init__(self, scene, tracer, n, *, strategies: Strategies, settings: PathSettings,
+                 stream: SampleStream, tables: SceneTables | None = None):
+        if tables is None:
+            tables = SceneTables(scene, tracer, Emitters(scene, settings.light_sampling))
+        emitters = tables.emitters
         self.scene, self.tracer, self.emitters, self.tables = scene, tracer, emitters, tables
-        self.nee = nee and emitters.n_emitters > 0
-        self.bsdf_hits, self.mis, self.weight_fn = bsdf_hits, mis, weight_fn
-        self.limit, self.roulette, self.stream = limit, roulette, stream
-        self.rr_start = rr_start
-        self.rr_threshold = float(rr_threshold)
+        self.settings = settings
+        self.nee = strategies.nee and emitters.n_emitters > 0
+        self.bsdf_hits, self.mis = strategies.bsdf_hits, strategies.mis
+        self.weight_fn = HEURISTICS[settings.heuristic]
+        depth = strategies.depth if strategies.depth is not None else settings.max_depth
+        self.limit = RR_MAX_DEPTH if depth is None else depth
+        self.roulette = depth is None
+        self.stream = stream
+        self.rr_start = RR_START_DEPTH if settings.rr_depth is None else settings.rr_depth
+        self.rr_threshold = settings.rr_threshold
         self.eps = float(scene.ray_epsilon)
         self.radiance = np.zeros((3, n))
         self.rays = 0
         #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
         #: by camera rays is left to the caller's exact image (None: sampled)
-        self.visible = None
+        self.visible = VisibleLights(scene) if settings.visible_lights == "exact" else None
 
     def add(self, rows, value) -> None:
         """``radiance[:, rows] += value`` for distinct ``rows``, one channel at a

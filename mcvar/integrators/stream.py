@@ -31,11 +31,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..samplers import pixel_samples
+from ..samplers import pixel_sample_columns, pixel_samples
 
 __all__ = ["camera_rays", "CAMERA_DIMS", "VERTEX_DIMS", "LIGHT", "BSDF", "ROULETTE", "LIGHT_SELECT",
-           "SAMPLER_DIM", "WHOLE_SET_FLOATS", "stream_dim", "SampleStream", "sample_slices",
-           "batch_stream"]
+           "SAMPLER_DIM", "WHOLE_SET_FLOATS", "stream_dim", "SampleStream", "whole_dims",
+           "whole_pattern", "batch_stream"]
 
 #: Columns of the camera (pixel position).
 CAMERA_DIMS = 2
@@ -115,64 +115,68 @@ class SampleStream:
         return self.columns(CAMERA_DIMS + VERTEX_DIMS * (k - 1) + offset, count, idx, dtype)
 
 
-def sample_slices(sampler: str, n_pix: int, spp: int, sizes, dim: int, rng):
-    """Per-batch slices of one stratified pattern per pixel over all spp.
+def whole_dims(sampler: str, n_pix: int, spp: int, n_batches: int, dim: int) -> int:
+    """Leading columns of the whole-render pattern :func:`whole_pattern` keeps (even, 0: none)."""
+    if sampler == "random" or n_batches == 1:
+        return 0
+    dims = min(dim, WHOLE_SET_FLOATS // (n_pix * spp)) // 2 * 2
+    return dims if dims >= 2 else 0
+
+
+def whole_pattern(sampler: str, n_pix: int, spp: int, n_batches: int, dim: int, rng):
+    """One stratified pattern per pixel over all spp, for the batches to slice.
 
     For a stratified or QMC sampler, each pixel's whole ``spp``-point set is
     drawn once for the leading dimensions that fit :data:`WHOLE_SET_FLOATS`
-    (an even number, at most ``dim``), and the batches trace consecutive
-    slices of it, so a 256-spp Sobol render is one 256-point net per pixel,
-    not sixteen 16-point ones (measured at 64 x 64: MSE 7.0e-5 -> 3.0e-5 for
-    path tracing). Partial sets stay unbiased (each point is marginally
-    uniform), so an interrupted render is too. Returns a list of
-    ``(n_pix, size, dim_whole)`` arrays, or of None (``random``: iid has
-    nothing to keep; a single batch; nothing fits).
+    (an even number, at most ``dim``: :func:`whole_dims`), and the batches
+    trace consecutive slices of it (batch ``b`` of ``s`` spp starting at
+    sample ``a``: ``pattern[:, a:a + s]``), so a 256-spp Sobol render is one
+    256-point net per pixel, not sixteen 16-point ones (measured at 64 x 64:
+    MSE 7.0e-5 -> 3.0e-5 for path tracing). Partial sets stay unbiased (each
+    point is marginally uniform), so an interrupted render is too. Returns
+    an ``(n_pix, spp, dims)`` array, or None (``random``: iid has nothing to
+    keep; a single batch; nothing fits).
     """
-    if sampler == "random" or len(sizes) == 1:
-        return [None] * len(sizes)
-    dims = min(dim, WHOLE_SET_FLOATS // (n_pix * spp)) // 2 * 2
-    if dims < 2:
-        return [None] * len(sizes)
-    u = pixel_samples(sampler, n_pix, spp, dim=dims, rng=rng)
-    edges = np.cumsum([0] + list(sizes))
-    return [u[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
+    dims = whole_dims(sampler, n_pix, spp, n_batches, dim)
+    return pixel_samples(sampler, n_pix, spp, dim=dims, rng=rng) if dims else None
 
 
 def batch_stream(sampler: str, n_pix: int, spp: int, dim: int, whole, rng):
-    """One batch's sample matrix ``(n_pix spp, dim)`` in path order, or None for ``random``.
+    """One batch's sample matrix ``(n_pix spp, dim)`` in path order, or None.
 
-    ``whole``: this batch's slice of :func:`sample_slices` (its leading
-    columns), or None; the remaining columns are this batch's own padded
-    sets (:func:`mcvar.samplers.pixel_samples`, drawn from ``rng``, all of
-    them shuffled pairs).
+    None for ``random`` (every dimension from the batch's ``rng``) and for
+    ``dim = 0`` (a method that reads no sampler columns). ``whole``: this
+    batch's slice of :func:`whole_pattern` (its leading columns), or None;
+    the remaining columns are this batch's own padded sets
+    (:func:`mcvar.samplers.pixel_sample_columns`, drawn from ``rng``, the
+    values of :func:`~mcvar.samplers.pixel_samples` laid out as rows, so
+    the matrix returned is a transposed view: a dimension is contiguous).
     """
-    if sampler == "random":
+    if sampler == "random" or dim == 0:
         return None
     have = 0 if whole is None else whole.shape[2]
     if have >= dim:
-        u = whole[:, :, :dim]
-    else:
-        if whole is None:
-            u = pixel_samples(sampler, n_pix, spp, dim=dim, rng=rng)
-        else:
-            # drop the first pair of the batch's own sets: it keeps the
-            # sampler's order (pixel_samples' notes) and would correlate with
-            # the whole set's first pair; the later pairs are shuffled
-            rest = pixel_samples(sampler, n_pix, spp, dim=dim - have + 2, rng=rng)[:, :, 2:]
-            u = np.concatenate([whole, rest], axis=2)
-    return np.ascontiguousarray(u).reshape(n_pix * spp, dim)
+        return np.ascontiguousarray(whole[:, :, :dim]).reshape(n_pix * spp, dim)
+    if whole is None:
+        return pixel_sample_columns(sampler, n_pix, spp, dim=dim, rng=rng).T
+    # drop the first pair of the batch's own sets: it keeps the sampler's
+    # order (pixel_samples' notes) and would correlate with the whole set's
+    # first pair; the later pairs are shuffled
+    rest = pixel_samples(sampler, n_pix, spp, dim=dim - have + 2, rng=rng)[:, :, 2:]
+    return np.ascontiguousarray(np.concatenate([whole, rest], axis=2)).reshape(n_pix * spp, dim)
 
 
 def camera_rays(job, *, soa: bool = False):
     """The camera rays of a batch: ``(pixel, origins, directions, stream)``.
 
-    Path ``i`` of the batch belongs to pixel ``i // spp`` (pixel-major) and
+    Path ``i`` of the batch belongs to pixel ``job.pixel_index[i // spp]``
+    (pixel-major: all pixels, or the batch's ``job.pixels``) and
     takes its position in the pixel from columns 0-1 of its sample stream.
     Directions are ``(n, 3)``, or ``(3, n)`` with ``soa=True`` (the wavefront
     layout); origins broadcast to the same shape (a read-only view).
     """
     n = job.n_pixels * job.spp
-    pixel = np.repeat(np.arange(job.n_pixels), job.spp)
+    pixel = np.repeat(job.pixel_index, job.spp)
     stream = SampleStream(job.u, job.rng)
     offsets = stream.columns(0, CAMERA_DIMS, np.arange(n))
     cam = job.scene.camera

@@ -26,7 +26,9 @@ spheres                    ``sphere`` (``center``, ``radius``)
 smooth ``Conductor``       ``twosided`` ``conductor`` with the same ``eta, k``
 ``Glass(eta, 'exact')``    ``dielectric``, ``int_ior = eta``, ``ext_ior = 1``,
                            tints as ``specular_reflectance/transmittance``
-emission (one-sided)       ``area`` emitter on the primitive's shape
+emission (one-sided)       ``area`` emitter on the primitive's shape; emission
+                           that is not a light (``prim_light == -1``: found
+                           by BSDF sampling only) with ``sampling_weight: 0``
 emission (two-sided)       ``area`` towards the only side anything can see
                            (the other side is unobservable: everything else
                            lies on one side of the emitting plane, or inside /
@@ -65,6 +67,8 @@ it on the asymmetric Cornell box and with a sparse environment map.
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
 import json
 import math
 import os
@@ -77,7 +81,14 @@ import numpy as np
 from .._validation import as_rng, check_choice, check_count
 from ..bsdf import Conductor, Glass, Lambertian, Mirror
 from ..envmap import EnvironmentMap
-from ..scene import Scene
+
+if TYPE_CHECKING:  # annotations only: importing mcvar.scene here would make a cycle with scene.save_scene
+    from ..scene import Scene
+
+#: What a scene must hold to be exported (duck-typed: mcvar.scene imports this
+#: module inside save_scene, so this module does not import mcvar.scene).
+_SCENE_FIELDS = ("triangles", "sphere_centers", "sphere_radii", "prim_material", "prim_emission", "prim_light",
+                 "materials", "material_names", "camera", "light_origin", "point_light_position")
 
 __all__ = ["to_mitsuba", "render_mitsuba", "scene_fingerprint", "INTEGRATORS", "EXPORTER_VERSION"]
 
@@ -285,12 +296,19 @@ def _sphere_emission_inward(scene: Scene, s: int) -> bool:
                      "or other geometry lies both inside and outside it")
 
 
-def _emitter(le, checker_period) -> dict:
+def _emitter(le, checker_period, is_light: bool) -> dict:
+    """An ``area`` emitter; emission that is not one of mcvar's lights (``prim_light == -1``)
+    is found only by BSDF sampling in mcvar, and gets ``sampling_weight: 0`` (never
+    chosen by next-event estimation, MIS weight 1 when hit) in Mitsuba too."""
     if checker_period is None:
-        return {"type": "area", "radiance": _rgb(le)}
-    # Mitsuba's checkerboard is color1 where floor(2u) + floor(2v) is odd; with
-    # (u, v) = (x, z) / (2 p) that is mcvar's lit square.
-    return {"type": "area", "radiance": {"type": "checkerboard", "color0": _rgb(0.0), "color1": _rgb(le)}}
+        e = {"type": "area", "radiance": _rgb(le)}
+    else:
+        # Mitsuba's checkerboard is color1 where floor(2u) + floor(2v) is odd; with
+        # (u, v) = (x, z) / (2 p) that is mcvar's lit square.
+        e = {"type": "area", "radiance": {"type": "checkerboard", "color0": _rgb(0.0), "color1": _rgb(le)}}
+    if not is_light:
+        e["sampling_weight"] = 0.0
+    return e
 
 
 # ---------------------------------------------------------------------------
@@ -364,7 +382,45 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
     >>> d = to_mitsuba(load_scene("cornell"), res=32, spp=64)  # doctest: +SKIP
     >>> image = mi.render(mi.load_dict(d))                     # doctest: +SKIP
     """
-    if not isinstance(scene, Scene):
+    mi = _mitsuba()
+    return scene_dict(scene, res=res, spp=spp, integrator=integrator, max_depth=max_depth, folder=folder,
+                      transforms=MitsubaTransforms(
+                          look_at=lambda o, t, u: mi.ScalarTransform4f().look_at(origin=o, target=t, up=u),
+                          rotate_y=lambda deg: mi.ScalarTransform4f().rotate(axis=[0, 1, 0], angle=deg),
+                          write_exr=lambda path, image: mi.Bitmap(image).write(str(path))))
+
+
+@dataclass(frozen=True)
+class MitsubaTransforms:
+    """How :func:`scene_dict` builds the dictionary's ``to_world`` values and writes EXR images.
+
+    :func:`to_mitsuba` passes Mitsuba's own (``mi.ScalarTransform4f``,
+    ``mi.Bitmap``), for ``mi.load_dict``; :func:`mcvar.scene.save_scene`
+    passes XML records and :func:`mcvar.images.write_image`, so that writing a
+    scene file needs no Mitsuba.
+
+    Attributes
+    ----------
+    look_at : callable
+        ``look_at(origin, target, up)`` with three lists of 3 floats.
+    rotate_y : callable
+        ``rotate_y(degrees)``: a rotation about +y.
+    write_exr : callable
+        ``write_exr(path, image)`` with a float32 ``(H, W, 3)`` image.
+    """
+
+    look_at: Callable
+    rotate_y: Callable
+    write_exr: Callable
+
+
+def scene_dict(scene: Scene, *, res, spp: int, integrator: str = "path", max_depth: int | None = None,
+               folder=None, transforms: MitsubaTransforms) -> dict:
+    """:func:`to_mitsuba`'s dictionary with ``transforms`` building its
+    ``to_world`` values and writing its EXR images (the one mapping from
+    Scene to Mitsuba, shared by :func:`to_mitsuba` and
+    :func:`mcvar.scene.save_scene`)."""
+    if not all(hasattr(scene, a) for a in _SCENE_FIELDS):
         raise TypeError(f"scene must be a mcvar.scene.Scene (see load_scene); got {type(scene).__name__}")
     width, height = _as_res(res)
     spp = check_count(spp, "spp")
@@ -391,14 +447,15 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         le = scene.prim_emission[t]
         emits = bool(np.any(le > 0))
         key = (int(scene.prim_material[t]), tuple(le.tolist()) if emits else None,
-               bool(scene.prim_two_sided_emission[t]) and emits)
+               bool(scene.prim_two_sided_emission[t]) and emits, bool(scene.prim_light[t] >= 0) and emits)
         tri_groups.setdefault(key, []).append(t)
     flips = {key: (_triangle_emission_flip(scene, np.array(idx), extent) if key[2] else False)
              for key, idx in tri_groups.items()}
     inward = {s: _sphere_emission_inward(scene, s) for s in range(scene.n_spheres)
               if np.any(scene.prim_emission[n_tri + s] > 0) and scene.prim_two_sided_emission[n_tri + s]}
 
-    mi = _mitsuba()
+    if not isinstance(transforms, MitsubaTransforms):
+        raise TypeError(f"transforms must be a MitsubaTransforms; got {type(transforms).__name__}")
     cam = scene.camera
     d: dict = {"type": "scene"}
     d["integrator"] = {"type": integrator}
@@ -407,9 +464,8 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
     d["sensor"] = {
         "type": "perspective", "fov": float(cam.fov_deg), "fov_axis": "x",
         "near_clip": 1e-4 * extent, "far_clip": 1e2 * extent,
-        "to_world": mi.ScalarTransform4f().look_at(origin=[float(x) for x in cam.position],
-                                                   target=[float(x) for x in cam.look_at],
-                                                   up=[float(x) for x in cam.up]),
+        "to_world": transforms.look_at([float(x) for x in cam.position], [float(x) for x in cam.look_at],
+                                       [float(x) for x in cam.up]),
         "sampler": {"type": "independent", "sample_count": spp},
         "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
                  "pixel_format": "rgb", "component_format": "float32"},
@@ -419,7 +475,7 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         ids.append(f"bsdf_{i}_{_safe(name)}")
         d[ids[-1]] = b
     for g, (key, idx) in enumerate(tri_groups.items()):
-        mat, le, _ = key
+        mat, le, _, is_light = key
         tris = scene.triangles[np.array(idx)]
         if flips[key]:
             tris = tris[:, ::-1]
@@ -430,7 +486,7 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         path = _write_once(folder, f"mesh{g}", ".ply", payload, lambda p, b=payload: Path(p).write_bytes(b))
         shape = {"type": "ply", "filename": path, "face_normals": True, "bsdf": {"type": "ref", "id": ids[mat]}}
         if le is not None:
-            shape["emitter"] = _emitter(le, scene.checker_period)
+            shape["emitter"] = _emitter(le, scene.checker_period, is_light)
         d[f"mesh{g}_{_safe(scene.material_names[mat])}"] = shape
     for s in range(scene.n_spheres):
         mat = int(scene.prim_material[n_tri + s])
@@ -438,13 +494,17 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
                  "radius": float(scene.sphere_radii[s]), "bsdf": {"type": "ref", "id": ids[mat]}}
         le = scene.prim_emission[n_tri + s]
         if np.any(le > 0):
-            shape["emitter"] = _emitter(le, None)
+            shape["emitter"] = _emitter(le, None, bool(scene.prim_light[n_tri + s] >= 0))
             if inward.get(s, False):
                 shape["flip_normals"] = True
         d[f"sphere{s}_{_safe(scene.material_names[mat])}"] = shape
     for p in range(scene.n_point_lights):
         d[f"point{p}"] = {"type": "point", "position": [float(x) for x in scene.point_light_position[p]],
                           "intensity": _rgb(scene.point_light_intensity[p])}
+    if env is None and scene.n_lights == 0 and scene.n_point_lights == 0:
+        # Mitsuba needs one emitter that next-event estimation can choose; a black
+        # point light at the camera keeps every emitter above at sampling weight 0
+        d["no_light"] = {"type": "point", "position": [float(x) for x in cam.position], "intensity": _rgb(0.0)}
     if env is not None:
         img = np.asarray(env.image)
         if np.all(img == img[0, 0]):
@@ -452,10 +512,9 @@ def to_mitsuba(scene: Scene, *, res, spp: int, integrator: str = "path", max_dep
         else:
             bitmap = _envmap_bitmap(env)
             path = _write_once(folder, "envmap", ".exr", bitmap.tobytes() + str(bitmap.shape).encode(),
-                               lambda p, b=bitmap: mi.Bitmap(b).write(str(p)))
+                               lambda p, b=bitmap: transforms.write_exr(p, b))
             d["environment"] = {"type": "envmap", "filename": path,
-                                "to_world": mi.ScalarTransform4f().rotate(axis=[0, 1, 0],
-                                                                          angle=ENVMAP_ROTATION_DEG)}
+                                "to_world": transforms.rotate_y(ENVMAP_ROTATION_DEG)}
     return d
 
 

@@ -722,7 +722,10 @@ class _Builder:
                 raise node.error("give position or to_world, not both")
             if not np.all(intensity >= 0):
                 raise node.error("intensity must be non-negative")
-            self.points.append((position, intensity))
+            # a black point light emits nothing: dropping it is exact (the exporter writes
+            # one where Mitsuba needs an emitter for next-event estimation to choose)
+            if np.any(intensity > 0):
+                self.points.append((position, intensity))
             return
         if self.environment is not None:
             raise node.error("mcvar has one environment emitter; this is the second")

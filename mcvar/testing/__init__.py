@@ -22,9 +22,13 @@ Every check returns a frozen result with ``passed`` and a ``message``; none
 raises on a failing sampler (bad *arguments* raise ``ValueError`` /
 ``TypeError``). :mod:`mcvar.testing.mutants` holds deliberately broken
 samplers that the checks must reject, and :func:`measure_power` measures how
-many samples each check needs to reject one.
+many samples each check needs to reject one. :mod:`mcvar.testing.grade`
+turns the checks into graders of exercises, :mod:`mcvar.testing.exercises`
+holds the course's exercises (graders and stubs; their answers live in the
+test suite, not here) and :mod:`mcvar.testing.bugs` the classes of the 'find
+the bug' notebook.
 """
-from ._chi2 import Chi2Result, bsdf_chi2_test, chi2_test, sidak_significance
+from ._chi2 import Chi2Result, Chi2Settings, bsdf_chi2_test, chi2_test, sidak_significance
 from ._domains import DOMAINS, Domain
 from .checks import (BSDFLike, CheckResult, PowerResult, check_extremes, check_inverse, check_pdf_normalized,
                      check_unbiased, check_weight_consistency, measure_power)
@@ -39,6 +43,7 @@ __all__ = [
     "BSDFLike",
     "sidak_significance",
     "chi2_test",
+    "Chi2Settings",
     "bsdf_chi2_test",
     "check_pdf_normalized",
     "check_weight_consistency",

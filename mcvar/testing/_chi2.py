@@ -13,10 +13,11 @@ from typing import Callable
 import numpy as np
 from scipy import stats
 
-from .._validation import as_directions, as_rng, as_unit_directions, check_count, check_choice, check_positive
+from .._validation import (as_directions, as_rng, as_unit_directions, check_choice, check_count, check_positive,
+                           settings_with)
 from ._domains import _DOMAIN_INFO, DOMAINS, Domain, _bounds, _expected_counts, _to_params
 
-__all__ = ["DOMAINS", "Chi2Result", "sidak_significance", "chi2_test", "bsdf_chi2_test"]
+__all__ = ["DOMAINS", "Chi2Result", "Chi2Settings", "sidak_significance", "chi2_test", "bsdf_chi2_test"]
 
 
 def sidak_significance(significance: float, test_count: int) -> float:
@@ -141,12 +142,29 @@ def _default_bins(n, domain):
     return (m, 2 * m)
 
 
-def _fail(msg, *, sig, obs, exp, edges, coords, domain, n, integral=float("nan"), outside=0,
-          failed=0, valid_p=float("nan")):
-    return Chi2Result(statistic=float("inf"), dof=0, pvalue=0.0, significance=sig, passed=False,
-                      message=msg, observed=obs, expected=exp, edges=edges, coordinates=coords,
-                      domain=domain, n=n, pdf_integral=integral, outside_bounds=outside,
-                      failed=failed, valid_pvalue=valid_p)
+def _fail(msg: str, fields: dict) -> Chi2Result:
+    """A failed test: ``pvalue = 0`` with ``msg``; ``fields`` are :class:`Chi2Result` fields
+    (``significance``, ``observed``, ``expected``, ``edges``, ``coordinates``, ``domain``,
+    ``n`` and whichever of the counts are known)."""
+    return Chi2Result(**{"statistic": float("inf"), "dof": 0, "pvalue": 0.0, "passed": False, "message": msg,
+                         "pdf_integral": float("nan"), "outside_bounds": 0, "failed": 0,
+                         "valid_pvalue": float("nan"), **fields})
+
+
+@dataclass(frozen=True)
+class Chi2Settings:
+    """The options of :func:`chi2_test` and :func:`bsdf_chi2_test` (their keywords; see
+    :func:`chi2_test` for each)."""
+
+    n: int = 1_000_000
+    rng: object = None
+    bins: tuple | None = None
+    bounds: tuple | None = None
+    significance: float = 1e-3
+    test_count: int = 1
+    min_expected: float = 5.0
+    normalization_atol: float = 1e-3
+    batch_size: int = 1_000_000
 
 
 def _valid_fraction_pvalue(valid, n, integral, int_err):
@@ -160,10 +178,8 @@ def _valid_fraction_pvalue(valid, n, integral, int_err):
     return float(stats.binomtest(int(valid), int(n), p).pvalue)
 
 
-def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000_000,
-              rng=None, bins=None, bounds=None, significance: float = 1e-3,
-              test_count: int = 1, min_expected: float = 5.0,
-              normalization_atol: float = 1e-3, batch_size: int = 1_000_000) -> Chi2Result:
+def chi2_test(sample: Callable, pdf: Callable, domain: Domain, settings: Chi2Settings | None = None,
+              **options) -> Chi2Result:
     """Chi-square goodness-of-fit test of a sampler against its pdf.
 
     Parameters
@@ -187,6 +203,12 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
     domain : {'square', 'disk', 'hemisphere', 'sphere'}
         'square' is [0, 1]^2, 'disk' the unit disk, 'hemisphere' the
         directions with ``y >= 0`` (normal +y) and 'sphere' all directions.
+    settings : Chi2Settings, optional
+        The options below (Other Parameters) as one record; those keywords
+        replace its fields (any other keyword is a ``TypeError``).
+
+    Other Parameters
+    ----------------
     n : int
         Number of samples, failed ones included (drawn in batches of
         ``batch_size``).
@@ -290,27 +312,87 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
         raise TypeError(f"sample must be callable; got {type(sample).__name__}")
     if not callable(pdf):
         raise TypeError(f"pdf must be callable; got {type(pdf).__name__}")
+    setup, info = _setup(domain, settings_with(Chi2Settings, settings, options, "chi2_test"))
+    hist = _histogram(sample, setup)
+    if isinstance(hist, str):
+        return _fail(hist, info)
+    observed, outside, failed, reports_valid = hist
+    info.update(observed=observed, outside_bounds=outside, failed=failed)
+    checked = _check_integral(pdf, setup, hist, info)
+    if isinstance(checked, Chi2Result):
+        return checked
+    expected, _, integral, valid_p, _ = checked
+    stat = _statistic(observed, expected, integral, outside + failed,
+                      not setup.is_full or reports_valid, setup.min_expected, setup.bins)
+    if isinstance(stat, str):
+        return _fail(stat, {**info, "valid_pvalue": valid_p})
+    return _verdict(stat, info, checked, hist, setup.n)
+
+
+def _verdict(stat_dof: tuple, info: dict, checked: tuple, hist: tuple, n: int) -> Chi2Result:
+    """The test's result from Pearson's statistic and its degrees of freedom."""
+    stat, dof = stat_dof
+    _, ierr, integral, valid_p, binomial = checked
+    failed, reports_valid = hist[2], hist[3]
+    pval = float(stats.chi2.sf(stat, dof))
+    sig = info["significance"]
+    passed = pval > sig
+    msg = (f"chi-square {stat:.4g} on {dof} dof, p = {pval:.3g} {'>' if passed else '<='} significance "
+           f"{sig:.3g}: {'accepted' if passed else 'rejected'}")
+    if reports_valid:
+        msg += (f"; {failed} of {n} samples failed, valid fraction {(n - failed) / n:.6g} vs "
+                f"pdf integral {integral:.6g}" + (f" (binomial p = {valid_p:.3g})" if binomial else ""))
+    return Chi2Result(statistic=stat, dof=dof, pvalue=pval, passed=passed, message=msg,
+                      integration_error=ierr, valid_pvalue=valid_p, **info)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """A chi-square test's checked settings and histogram geometry."""
+
+    domain: str
+    n: int
+    batch_size: int
+    gen: np.random.Generator
+    min_expected: float
+    atol: float
+    full_bounds: tuple
+    is_full: bool
+    bins: tuple
+    dim: int
+    edges: tuple
+
+
+def _setup(domain, opts: Chi2Settings):
+    """Every setting checked before any work: ``(_Setup, the result's known fields)``."""
     domain = check_choice(domain, "domain", DOMAINS)
-    n = check_count(n, "n")
-    batch_size = check_count(batch_size, "batch_size")
-    sig = sidak_significance(significance, test_count)
-    min_expected = check_positive(min_expected, "min_expected")
-    normalization_atol = check_positive(normalization_atol, "normalization_atol", allow_inf=True)
-    gen = as_rng(rng)
-    full_bounds, is_full = _bounds(domain, bounds)
-    if bins is None:
-        bins = _default_bins(n, domain)
+    n = check_count(opts.n, "n")
+    batch_size = check_count(opts.batch_size, "batch_size")
+    sig = sidak_significance(opts.significance, opts.test_count)
+    min_expected = check_positive(opts.min_expected, "min_expected")
+    atol = check_positive(opts.normalization_atol, "normalization_atol", allow_inf=True)
+    full_bounds, is_full = _bounds(domain, opts.bounds)
+    bins = _default_bins(n, domain) if opts.bins is None else opts.bins
     if np.ndim(bins) != 1 or len(bins) != 2:
         raise ValueError(f"bins must be a pair of ints; got {bins!r}")
     bins = (check_count(bins[0], "bins[0]"), check_count(bins[1], "bins[1]"))
     _, coords, _, dim = _DOMAIN_INFO[domain]
     edges = tuple(np.linspace(full_bounds[k][0], full_bounds[k][1], bins[k] + 1) for k in range(2))
     empty = np.zeros(bins)
+    info = dict(significance=sig, observed=empty, expected=empty, edges=edges, coordinates=coords,
+                domain=domain, n=n)
+    return _Setup(domain, n, batch_size, as_rng(opts.rng), min_expected, atol, full_bounds, is_full, bins, dim,
+                  edges), info
 
-    # --- samples -----------------------------------------------------------
+
+def _histogram(sample, setup: _Setup):
+    """Histogram of ``n`` samples over the parameter rectangle: ``(observed, outside, failed,
+    reports_valid)``, or a message saying why the samples fail the test outright."""
+    domain, dim, n, batch_size, gen, bins = setup.domain, setup.dim, setup.n, setup.batch_size, setup.gen, setup.bins
     observed = np.zeros(bins[0] * bins[1], dtype=np.int64)
     outside = failed = 0
     reports_valid = False
+    (lo0, hi0), (lo1, hi1) = setup.full_bounds
     for start in range(0, n, batch_size):
         m = min(batch_size, n - start)
         x, valid = _sample_points(sample, gen.random((m, 2)), dim)
@@ -320,60 +402,66 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
             failed += m - x.shape[0]
         finite = np.all(np.isfinite(x), axis=1)
         if not np.all(finite):
-            return _fail(f"{int((~finite).sum())} of {m} samples are NaN or Inf"
-                         + (" (and marked valid)" if valid is not None else ""), sig=sig, obs=empty,
-                         exp=empty, edges=edges, coords=coords, domain=domain, n=n)
+            return (f"{int((~finite).sum())} of {m} samples are NaN or Inf"
+                    + (" (and marked valid)" if valid is not None else ""))
         c0, c1, ok = _to_params(x, domain)
         if not np.all(ok):
             hint = ("" if valid is not None else
                     "; a sampler whose samples may fail returns (points, valid)")
-            return _fail(f"{int((~ok).sum())} of {m} samples lie outside the {domain} domain{hint}",
-                         sig=sig, obs=empty, exp=empty, edges=edges, coords=coords, domain=domain, n=n)
-        (lo0, hi0), (lo1, hi1) = full_bounds
+            return f"{int((~ok).sum())} of {m} samples lie outside the {domain} domain{hint}"
         inb = (c0 >= lo0) & (c0 <= hi0) & (c1 >= lo1) & (c1 <= hi1)
         outside += int((~inb).sum())
         i0 = np.minimum(((c0[inb] - lo0) / (hi0 - lo0) * bins[0]).astype(np.int64), bins[0] - 1)
         i1 = np.minimum(((c1[inb] - lo1) / (hi1 - lo1) * bins[1]).astype(np.int64), bins[1] - 1)
         observed += np.bincount(i0 * bins[1] + i1, minlength=bins[0] * bins[1])
-    observed = observed.reshape(bins).astype(np.float64)
-    n_valid = n - failed
+    return observed.reshape(bins).astype(np.float64), outside, failed, reports_valid
 
-    # --- expected counts -----------------------------------------------------
-    int_tol = 0.1 * normalization_atol if np.isfinite(normalization_atol) else np.inf
-    binomial = reports_valid and is_full and np.isfinite(normalization_atol)
+
+def _check_integral(pdf, setup: _Setup, hist: tuple, info: dict):
+    """Expected counts and the normalisation checks: ``(expected, integration error, integral,
+    valid-fraction p-value, binomial test run?)`` or a failed :class:`Chi2Result`. Updates
+    ``info`` (expected counts, integral, the significance after the binomial test's share)."""
+    domain, edges, n, is_full, atol, sig = (setup.domain, setup.edges, setup.n, setup.is_full, setup.atol,
+                                            info["significance"])
+    _, _, failed, reports_valid = hist
+    n_valid = n - failed
+    int_tol = 0.1 * atol if np.isfinite(atol) else np.inf
+    binomial = reports_valid and is_full and np.isfinite(atol)
     if binomial:  # resolve the integral well below the valid fraction's standard error
         f = n_valid / n
         int_tol = min(int_tol, 0.1 * np.sqrt(max(f * (1.0 - f), 1.0 / n) / n))
     expected, ierr, int_err, problem = _expected_counts(pdf, domain, edges, n, int_tol)
-    info = dict(sig=sig, obs=observed, edges=edges, coords=coords, domain=domain, n=n,
-                outside=outside, failed=failed)
     if problem is not None:
-        return _fail(problem, exp=empty, **info)
+        return _fail(problem, info)
     integral = float(expected.sum() / n)
-    info.update(exp=expected, integral=integral)
-    slack = normalization_atol + int_err
+    info.update(expected=expected, pdf_integral=integral)
+    slack = atol + int_err
     if is_full and not reports_valid and not abs(integral - 1.0) <= slack:
         return _fail(f"pdf integrates to {integral:.6g} over the {domain}, not 1 "
-                     f"(tolerance {normalization_atol:g} + quadrature error {int_err:.2g})", **info)
+                     f"(tolerance {atol:g} + quadrature error {int_err:.2g})", info)
     if not integral <= 1.0 + slack:
         where = f"over the {domain}" if is_full else "over bounds alone"
-        return _fail(f"pdf integrates to {integral:.6g} > 1 {where}", **info)
+        return _fail(f"pdf integrates to {integral:.6g} > 1 {where}", info)
     valid_p = float("nan")
     if binomial:
         sig = sidak_significance(sig, 2)
-        info["sig"] = sig
+        info["significance"] = sig
         valid_p = _valid_fraction_pvalue(n_valid, n, integral, int_err)
         if not valid_p > sig:
             return _fail(f"{n_valid} of {n} samples are valid (fraction {n_valid / n:.6g}) but the "
                          f"pdf integrates to {integral:.6g}: binomial p = {valid_p:.3g} <= {sig:.3g}; "
                          "the pdf must integrate to the probability of a valid sample",
-                         valid_p=valid_p, **info)
+                         {**info, "valid_pvalue": valid_p})
+    return expected, ierr, integral, valid_p, binomial
 
-    # --- pooling and statistic ---------------------------------------------
+
+def _statistic(observed, expected, integral, rest, extra_cell, min_expected, bins):
+    """Pearson's statistic after pooling: ``(T, dof)``, or a message when samples fell where
+    the pdf integrates to 0."""
     obs = observed.ravel()
     exp = expected.ravel()
-    rest = outside + failed
-    if not is_full or reports_valid:
+    n = observed.sum() + rest
+    if extra_cell:
         obs = np.append(obs, rest)
         # 1 - I within rounding of 0 leaves nothing for failures or the outside
         exp = np.append(exp, n * (1.0 - integral) if 1.0 - integral > 1e-12 else 0.0)
@@ -383,7 +471,7 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
         what = ("samples failed or fell outside bounds although the pdf integrates to 1"
                 if zero[-1] and obs[-1] > 0 and exp.size > observed.size
                 else "samples fell in cells where the pdf integrates to 0")
-        return _fail(f"{k} {what}", valid_p=valid_p, **info)
+        return f"{k} {what}"
     obs, exp = obs[~zero], exp[~zero]
     order = np.argsort(exp, kind="stable")
     obs, exp = obs[order], exp[order]
@@ -397,31 +485,16 @@ def chi2_test(sample: Callable, pdf: Callable, domain: Domain, *, n: int = 1_000
         exp = np.append(exp[k:], exp[:k].sum())
     dof = int(exp.size - 1)
     if dof < 1:
-        raise ValueError(f"n = {n} is too small for {bins} bins: fewer than 2 cells reach the "
+        raise ValueError(f"n = {int(n)} is too small for {bins} bins: fewer than 2 cells reach the "
                          f"expected count {min_expected}")
-    stat = float(np.sum((obs - exp) ** 2 / exp))
-    pval = float(stats.chi2.sf(stat, dof))
-    passed = pval > sig
-    msg = (f"chi-square {stat:.4g} on {dof} dof, p = {pval:.3g} "
-           f"{'>' if passed else '<='} significance {sig:.3g}: "
-           f"{'accepted' if passed else 'rejected'}")
-    if reports_valid:
-        msg += (f"; {failed} of {n} samples failed, valid fraction {n_valid / n:.6g} vs pdf "
-                f"integral {integral:.6g}" + (f" (binomial p = {valid_p:.3g})" if binomial else ""))
-    return Chi2Result(statistic=stat, dof=dof, pvalue=pval, significance=sig, passed=passed,
-                      message=msg, observed=observed, expected=expected, edges=edges,
-                      coordinates=coords, domain=domain, n=n, pdf_integral=integral,
-                      integration_error=ierr, outside_bounds=outside, failed=failed,
-                      valid_pvalue=valid_p)
+    return float(np.sum((obs - exp) ** 2 / exp)), dof
 
 
 # --------------------------------------------------------------------------
 # BSDF adapter
 # --------------------------------------------------------------------------
 
-def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
-                   significance: float = 1e-3, test_count: int = 1, min_expected: float = 5.0,
-                   normalization_atol: float = 1e-3, batch_size: int = 1_000_000) -> Chi2Result:
+def bsdf_chi2_test(bsdf, wo, settings: Chi2Settings | None = None, **options) -> Chi2Result:
     """Chi-square test of a BSDF's ``sample`` against its ``pdf`` at a fixed ``wo``.
 
     Parameters
@@ -433,9 +506,12 @@ def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
     wo : array_like, shape (3,)
         The outgoing unit direction, local space (normal +y). For a
         reflection model it must lie above the horizon (``wo[1] > 0``).
-    n, rng, bins, significance, test_count, min_expected, normalization_atol, batch_size
-        As in :func:`chi2_test`; ``n`` counts every sample, failed and delta
-        ones included.
+
+    Other Parameters
+    ----------------
+    settings, n, rng, bins, significance, test_count, min_expected, normalization_atol, batch_size
+        As in :func:`chi2_test` (``bounds`` excepted); ``n`` counts every
+        sample, failed and delta ones included.
 
     Returns
     -------
@@ -480,6 +556,9 @@ def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
     >>> r.passed, r.failed > 0
     (True, True)
     """
+    opts = settings_with(Chi2Settings, settings, options, "bsdf_chi2_test")
+    if opts.bounds is not None:
+        raise TypeError("bsdf_chi2_test() takes no bounds: it bins the whole hemisphere or sphere")
     for meth in ("pdf", "sample"):
         if not callable(getattr(bsdf, meth, None)):
             raise TypeError(f"bsdf must have a callable {meth}(...); got {type(bsdf).__name__}")
@@ -519,9 +598,8 @@ def bsdf_chi2_test(bsdf, wo, *, n: int = 1_000_000, rng=None, bins=None,
     def pdf(x):
         return bsdf.pdf(np.broadcast_to(wo, x.shape), x)
 
-    r = chi2_test(sample, pdf, domain, n=n, rng=rng, bins=bins, significance=significance,
-                  test_count=test_count, min_expected=min_expected,
-                  normalization_atol=normalization_atol, batch_size=batch_size)
+    r = chi2_test(sample, pdf, domain, opts)
+    n = opts.n
     msg = r.message
     if tally["problem"] is not None:
         msg = tally["problem"]

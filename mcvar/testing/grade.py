@@ -29,6 +29,10 @@ grader                          question
                                 probability proportional to ``L sin(theta)`` (the
                                 lecture's 'Creating A PDF')?
 :func:`grade_values`            does a function return known closed-form values?
+:func:`grade_dielectric`        does a glass pick mirror / Snell directions, weight 1,
+                                reflecting in the proportion of the exact Fresnel term?
+:func:`grade_chain`             does a Markov chain step leave its target invariant?
+:func:`grade_coverage`          do a standard error's intervals cover at their level?
 :func:`exercise`                the course notebooks' exercises by name
                                 (:mod:`mcvar.testing.exercises`)
 ==============================  ==========================================================
@@ -48,9 +52,11 @@ from typing import Callable
 import numpy as np
 from scipy import stats
 
-from .._validation import as_array, as_rng, check_choice, check_count, check_positive
+from .._validation import (as_array, as_rng, as_unit_directions, check_bool, check_choice, check_count,
+                           check_positive)
 from ..discrepancy import is_net
 from ..geometry import spherical_to_direction
+from ..optics import fresnel_dielectric, refract
 from ._domains import DOMAINS
 from .checks import CheckResult, check_extremes, check_unbiased, check_weight_consistency
 from ._chi2 import bsdf_chi2_test, chi2_test, sidak_significance
@@ -64,6 +70,9 @@ __all__ = [
     "grade_consistent",
     "grade_pixel_sampler",
     "grade_values",
+    "grade_dielectric",
+    "grade_chain",
+    "grade_coverage",
     "NOT_ATTEMPTED",
 ]
 
@@ -174,6 +183,25 @@ def _run(name: str, body: Callable, verbose: bool) -> GradeResult:
     return result
 
 
+def _teacher_args(name, verbose, significance=None, rng=None):
+    """The grader's own arguments, checked before any student code runs: a bad
+    one is the teacher's error (a ``ValueError`` or ``TypeError`` naming it),
+    never a FAIL of the student's code. Returns ``(significance, rng)``."""
+    if not isinstance(name, str):
+        raise TypeError(f"name must be a string; got {type(name).__name__}")
+    check_bool(verbose, "verbose")
+    if significance is not None:
+        significance = check_positive(significance, "significance")
+        if not significance < 1.0:
+            raise ValueError(f"significance must lie in (0, 1) (a test's false-alarm rate); got {significance}")
+    return significance, as_rng(rng)
+
+
+def _exact_value(exact) -> np.ndarray:
+    """``exact`` of an estimator grader: finite real numbers (a ValueError naming it)."""
+    return as_array(exact, "exact")
+
+
 def _first_failure(checks) -> str | None:
     for c in checks:
         if not c.passed:
@@ -213,6 +241,7 @@ def grade_warp(sample: Callable, pdf: Callable, domain: str, *, n: int = 200_000
         PASS when :func:`~mcvar.testing.check_extremes` and
         :func:`~mcvar.testing.chi2_test` both pass.
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
     domain = check_choice(domain, "domain", DOMAINS)
     n = check_count(n, "n")
     s, p = _guard(sample), _guard(pdf)
@@ -265,6 +294,8 @@ def grade_sampler(sampler: Callable, n: int, *, strata=None, net: int | None = N
     -------
     GradeResult
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    check_bool(randomized, "randomized")
     n = check_count(n, "n")
     replicates = check_count(replicates, "replicates") if randomized else 1
     if strata is not None:
@@ -351,7 +382,10 @@ def grade_bsdf(bsdf, *, wo=None, n: int = 100_000, rng=None, significance: float
     -------
     GradeResult
     """
-    wos = _default_wo() if wo is None else as_array(wo, "wo").reshape(-1, 3)
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    wos = _default_wo() if wo is None else as_unit_directions(wo, "wo").reshape(-1, 3)
+    if wos.shape[0] == 0:
+        raise ValueError("wo must hold at least one direction; got none")
     n = check_count(n, "n")
     b = _GuardedBSDF(bsdf)
     streams = as_rng(rng).spawn(2 * wos.shape[0])
@@ -431,9 +465,10 @@ def grade_estimator(estimator: Callable, exact, *, n: int, replicates: int = 64,
     replicates), at ``significance`` split Sidak-wise between the bias and
     the variance tests.
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    exact = _exact_value(exact)
     n = check_count(n, "n")
     replicates = _at_least_two(replicates)
-    significance = check_positive(significance, "significance")
     if variance is not None:
         variance = float(as_array(variance, "variance", nonnegative=True))
     est = _guard(estimator)
@@ -513,7 +548,11 @@ def grade_consistent(estimator: Callable, exact, ns, *, replicates: int = 32, rn
     estimator (the lecture's fixed grid) passes; an unbiased but inconsistent
     one (a single sample, whatever ``n``) fails.
     """
-    ns = [check_count(v, "ns[i]") for v in ns]
+    significance, rng = _teacher_args(name, verbose, significance, rng)
+    exact = _exact_value(exact)
+    if isinstance(ns, (str, bytes)) or not hasattr(ns, "__iter__"):
+        raise TypeError(f"ns must be a sequence of increasing counts; got {type(ns).__name__}")
+    ns = [check_count(v, f"ns[{i}]") for i, v in enumerate(ns)]
     if len(ns) < 2 or any(b <= a for a, b in zip(ns, ns[1:])):
         raise ValueError(f"ns must be at least two increasing counts; got {ns}")
     replicates = _at_least_two(replicates)
@@ -583,6 +622,7 @@ def grade_pixel_sampler(sample_pixels: Callable, image, *, n: int = 200_000, rng
         chi-square test (:func:`mcvar.testing.chi2_test`, one cell per pixel)
         accepts the pixel counts.
     """
+    significance, rng = _teacher_args(name, verbose, significance, rng)
     prob = _lat_long_probabilities(image)
     h, w = prob.shape
     img = np.array(image, dtype=np.float64)
@@ -645,6 +685,9 @@ def grade_values(function: Callable, inputs, expected, *, rtol: float = 1e-6, at
     -------
     GradeResult
     """
+    _teacher_args(name, verbose)
+    rtol = check_positive(rtol, "rtol", allow_zero=True)
+    atol = check_positive(atol, "atol", allow_zero=True)
     exp = as_array(expected, "expected")
     fn = _guard(function)
     inputs = tuple(inputs)
@@ -657,11 +700,234 @@ def grade_values(function: Callable, inputs, expected, *, rtol: float = 1e-6, at
         bad = ~(err <= atol + rtol * np.abs(exp))
         if np.any(bad):
             k = int(np.argmax(bad.ravel()))
-            args = ", ".join(f"{np.ravel(np.broadcast_to(a, exp.shape))[k]:.6g}" for a in inputs)
-            msg = (f"{int(bad.sum())} of {exp.size} values wrong; at ({args}) you return "
+            try:
+                where = "at (" + ", ".join(f"{np.ravel(np.broadcast_to(a, exp.shape))[k]:.6g}"
+                                           for a in inputs) + ")" if inputs else f"at entry {k}"
+            except ValueError:      # inputs that do not broadcast to the result (a table per value)
+                where = f"at entry {k}"
+            msg = (f"{int(bad.sum())} of {exp.size} values wrong; {where} you return "
                    f"{got.ravel()[k]:.8g}, expected {exp.ravel()[k]:.8g}")
             return False, msg, (CheckResult("values", False, float(err.max()), rtol, msg, exp.size),)
         msg = f"all {exp.size} values match (largest error {float(err.max()):.2g})"
         return True, msg, (CheckResult("values", True, float(err.max()), rtol, msg, exp.size),)
+
+    return _run(name, body, verbose)
+
+
+def grade_dielectric(glass, eta: float, *, n: int = 20_000, degrees=(0.0, 30.0, 60.0, 80.0, 89.0),
+                     inside_degrees=(20.0, 40.0, 45.0, 70.0), rng=None, significance: float = 1e-3,
+                     name: str = "glass", verbose: bool = True) -> GradeResult:
+    """Grade a smooth dielectric (the lecture's 'Glass'): Snell, total internal
+    reflection, and a Fresnel-weighted choice of lobe.
+
+    At each outgoing angle (from outside, ``wo.y > 0``, and from inside the
+    glass, ``wo.y < 0``) ``glass.sample(wo, u)`` is called with ``n`` uniform
+    points and must return, for every sample,
+
+    1. either the mirror direction or Snell's refracted direction
+       (:func:`mcvar.optics.refract`), to ``1e-9``;
+    2. weight 1 (choosing a lobe with its share of the energy: the glass
+       neither creates nor absorbs light, the furnace test of a delta BSDF);
+    3. reflections in the proportion of the exact Fresnel reflectance
+       :func:`mcvar.optics.fresnel_dielectric`: the count of reflected samples
+       is Binomial(n, F), tested two-sided with Sidak's correction over the
+       angles; beyond the critical angle (``F = 1``) every sample reflects.
+
+    Parameters
+    ----------
+    glass : object
+        With ``sample(wo, u) -> (wi, weight, pdf)`` (``wo`` of shape (n, 3), all
+        rows equal, ``u`` of shape (n, 2)), e.g. :class:`mcvar.bsdf.Glass`.
+    eta : float
+        Inside index relative to outside.
+    n : int
+        Samples per angle.
+    degrees, inside_degrees : sequence of float
+        Angles from the normal of ``wo`` outside and inside, in [0, 90).
+    rng, significance, name, verbose
+        As in :func:`grade_warp`.
+
+    Returns
+    -------
+    GradeResult
+    """
+    sample = getattr(glass, "sample", None)
+    if not callable(sample):
+        raise TypeError(f"glass must have a callable sample(wo, u); got {type(glass).__name__}")
+    eta = check_positive(eta, "eta")
+    n = check_count(n, "n")
+    significance = check_positive(significance, "significance")
+    angles = [(float(a), 1.0) for a in degrees] + [(float(a), -1.0) for a in inside_degrees]
+    if not angles or any(not 0.0 <= a < 90.0 for a, _ in angles):
+        raise ValueError(f"degrees and inside_degrees must be angles in [0, 90); got {degrees}, {inside_degrees}")
+    s = _guard(sample)
+    streams = as_rng(rng).spawn(len(angles))
+    sig = sidak_significance(significance, len(angles))
+
+    def body():
+        checks, zs = [], []
+        for (deg, side), g in zip(angles, streams):
+            t = np.radians(deg)
+            wo = np.array([np.sin(t), side * np.cos(t), 0.0])
+            where = f"wo {deg:g} deg from the normal {'outside' if side > 0 else 'inside the glass'}"
+            u = g.random((n, 2))
+            out = s(np.tile(wo, (n, 1)), u)
+            if not isinstance(out, tuple) or len(out) < 3:
+                return False, f"sample(wo, u) must return (wi, weight, pdf); got {type(out).__name__}", tuple(checks)
+            wi = np.asarray(out[0], dtype=np.float64).reshape(n, 3)
+            weight = np.asarray(out[1], dtype=np.float64).reshape(n, -1)
+            mirror = wo * np.array([-1.0, 1.0, -1.0])
+            wt, tir = refract(wo[None], 1.0, eta)
+            is_r = np.all(np.abs(wi - mirror) < 1e-9, axis=1)
+            is_t = np.all(np.abs(wi - wt[0]) < 1e-9, axis=1) & ~bool(tir[0])
+            if not np.all(is_r | is_t):
+                k = int(np.argmax(~(is_r | is_t)))
+                msg = (f"at {where}: {int(np.sum(~(is_r | is_t)))} of {n} directions are neither the mirror nor "
+                       f"Snell's refraction (e.g. {np.round(wi[k], 6).tolist()})")
+                return False, msg, tuple(checks)
+            if not np.all(np.abs(weight - 1.0) < 1e-9):
+                msg = (f"at {where}: weights must be 1 (a lobe chosen with its share of the energy); "
+                       f"they range over [{weight.min():.4g}, {weight.max():.4g}], mean {weight.mean():.4g}")
+                return False, msg, tuple(checks)
+            f = float(fresnel_dielectric(np.array([wo[1]]), 1.0, eta)[0]) if not tir[0] else 1.0
+            k = int(np.sum(is_r))
+            if f >= 1.0 or f <= 0.0:
+                ok = k == (n if f >= 1.0 else 0)
+                z = 0.0 if ok else float("inf")
+                msg = f"at {where}: {k} of {n} reflected, F = {f:g}"
+            else:
+                z = (k - n * f) / np.sqrt(n * f * (1.0 - f))
+                p = float(2.0 * stats.norm.sf(abs(z)))
+                ok = p >= sig
+                msg = f"at {where}: {k / n:.4f} of the samples reflected, exact Fresnel F = {f:.4f} (z = {z:+.1f})"
+            checks.append(CheckResult("fresnel", bool(ok), float(z), f, msg, n))
+            zs.append(abs(z))
+            if not ok:
+                return False, msg, tuple(checks)
+        return True, (f"mirror or Snell directions, weights 1, reflected shares match the exact Fresnel "
+                      f"reflectance at {len(angles)} angles (largest |z| = {max(zs):.2f}; total internal "
+                      "reflection beyond the critical angle)"), tuple(checks)
+
+    return _run(name, body, verbose)
+
+
+def grade_chain(step: Callable, sample_target: Callable, pdf: Callable, *, steps: int = 20,
+                n: int = 100_000, rng=None, significance: float = 1e-3, name: str = "Markov chain",
+                verbose: bool = True) -> GradeResult:
+    """Grade a Markov chain step: does it leave the target density invariant?
+
+    ``n`` chains start from exact samples of the target on the unit square
+    (``sample_target(u)``), each takes ``steps`` steps of ``step(x, rng)``; if
+    the step satisfies detailed balance for the target, the chains are still
+    distributed as the target (a stationary distribution stays put), which a
+    chi-square test of the ``n`` final states against ``pdf`` checks
+    (:func:`mcvar.testing.chi2_test`). A step that favours some states (an
+    acceptance missing a proposal density ratio) drifts away from it.
+
+    Parameters
+    ----------
+    step : callable
+        ``step(x, rng) -> x'`` for states ``x`` (n, 2) in [0, 1)^2,
+        vectorised over chains.
+    sample_target : callable
+        ``sample_target(u) -> x``: exact samples of the target from uniform ``u``.
+    pdf : callable
+        The target's normalised density on the square.
+    steps, n : int
+    rng, significance, name, verbose
+        As in :func:`grade_warp`.
+
+    Returns
+    -------
+    GradeResult
+    """
+    for fn, what in ((step, "step"), (sample_target, "sample_target"), (pdf, "pdf")):
+        if not callable(fn):
+            raise TypeError(f"{what} must be callable; got {type(fn).__name__}")
+    steps = check_count(steps, "steps")
+    n = check_count(n, "n")
+    significance = check_positive(significance, "significance")
+    st = _guard(step)
+    g_start, g_walk = as_rng(rng).spawn(2)
+
+    def body():
+        x = np.asarray(sample_target(g_start.random((n, 2))), dtype=np.float64)
+        moved = 0
+        for _ in range(steps):
+            y = np.asarray(st(x.copy(), g_walk), dtype=np.float64)
+            if y.shape != x.shape:
+                return False, f"step(x, rng) returned shape {y.shape}, expected {x.shape}", ()
+            if not np.all(np.isfinite(y)) or np.any(y < 0.0) or np.any(y >= 1.0):
+                return False, "step(x, rng) must return finite states in [0, 1)^2", ()
+            moved += int(np.sum(np.any(y != x, axis=1)))
+            x = y
+        rate = moved / (n * steps)
+        if rate == 0.0:
+            return False, "no chain ever moved: every proposal was rejected", ()
+        chi = chi2_test(lambda u: x[:u.shape[0]], pdf, "square", n=n, batch_size=n, rng=0,
+                        significance=significance)
+        if not chi.passed:
+            return False, (f"after {steps} steps the chains no longer follow the target (they started "
+                           f"exactly on it): {chi.message}; acceptance rate {rate:.2f}"), (chi,)
+        return True, (f"the target stays invariant: {n} chains after {steps} steps still follow it "
+                      f"(chi-square p = {chi.pvalue:.3g}); acceptance rate {rate:.2f}"), (chi,)
+
+    return _run(name, body, verbose)
+
+
+def grade_coverage(stderr: Callable, series, truth: float, *, level: float = 0.95,
+                   significance: float = 1e-3, name: str = "error bars",
+                   verbose: bool = True) -> GradeResult:
+    """Grade a standard-error estimator by the coverage of its intervals.
+
+    For each of ``R`` independent series (rows of ``series``, e.g. Markov
+    chains), the interval ``mean +- z_{(1+level)/2} stderr(row)`` must cover
+    ``truth`` in a fraction ``level`` of the rows: the number that do is
+    Binomial(R, level), tested two-sided at ``significance``. Error bars too
+    narrow (the iid ``s / sqrt(N)`` of a correlated chain) cover too rarely;
+    too wide ones cover too often.
+
+    Parameters
+    ----------
+    stderr : callable
+        ``stderr(h) -> float`` for one series ``h`` (N,).
+    series : array_like, shape (R, N)
+    truth : float
+        The expectation every series' mean estimates.
+    level : float
+        Nominal coverage, in (0, 1).
+    significance, name, verbose
+        As in :func:`grade_warp`.
+
+    Returns
+    -------
+    GradeResult
+    """
+    h = as_array(series, "series", ndim=2)
+    if h.shape[0] < 20 or h.shape[1] < 2:
+        raise ValueError(f"series must hold at least 20 series of 2 or more values; got shape {h.shape}")
+    truth = float(as_array(truth, "truth"))
+    level = float(level)
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must lie in (0, 1); got {level}")
+    significance = check_positive(significance, "significance")
+    se_fn = _guard(stderr)
+    z = float(stats.norm.isf((1.0 - level) / 2.0))
+
+    def body():
+        se = np.array([float(np.asarray(se_fn(row.copy()), dtype=np.float64)) for row in h])
+        if not np.all(np.isfinite(se)) or np.any(se < 0):
+            return False, "stderr(h) must return a finite, non-negative number", ()
+        covered = int(np.sum(np.abs(h.mean(axis=1) - truth) <= z * se))
+        r = h.shape[0]
+        p = float(stats.binomtest(covered, r, level).pvalue)
+        ok = p >= significance
+        msg = (f"{level:.0%} intervals cover the truth in {covered} of {r} series ({covered / r:.1%}; "
+               f"binomial p = {p:.3g})")
+        chk = CheckResult("coverage", ok, covered / r, level, msg, r)
+        if not ok:
+            hint = "too narrow: does it account for the correlation?" if covered / r < level else "too wide"
+            return False, f"{msg}: the error bars are {hint}", (chk,)
+        return True, msg, (chk,)
 
     return _run(name, body, verbose)
