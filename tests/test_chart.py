@@ -87,7 +87,9 @@ def test_chart_csv_has_the_columns_and_one_row_per_registered_method(tmp_path):
     for r in rows:
         assert (r["lecture_consistent"], r["lecture_unbiased"]) == chart.lecture_chart_claim(r["method"])
         assert r["consistent"] in ("yes", "no") and r["unbiased"] in ("yes", "no")
-        assert float(r["mse_x_time"]) > 0
+        # MSE is measured minus the reference's own noise and clipped at 0: at these tiny
+        # settings a method can land at or below that floor (light, bdpt with some seeds)
+        assert np.isfinite(float(r["mse_x_time"])) and float(r["mse_x_time"]) >= 0
         differs = (r["consistent"], r["unbiased"]) != (r["lecture_consistent"], r["lecture_unbiased"])
         assert bool(r["note"]) == differs or "knob" in r["note"]
     page = paths["html"].read_text()
