@@ -47,7 +47,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ._validation import as_array, as_rgb, check_positive
-from .bsdf import BSDF, Glass, Lambertian, Mirror
+from .bsdf import BSDF, Conductor, Glass, Lambertian, Mirror
 from .envmap import EnvironmentMap
 from .geometry import normalize
 from .scenefile import read_scene_file
@@ -494,6 +494,13 @@ class Scene:
         Radiant intensity ``I`` (W/sr, linear RGB) emitted uniformly in all
         directions: irradiance ``I cos / r^2`` at distance ``r``, power
         ``4 pi I``.
+    sphere_light : ndarray of int, shape (Ls,)
+        Spheres (indices ``0 .. S-1``) that are area lights next-event
+        estimation samples, by the cone they subtend (default none:
+        :func:`mcvar.warps.square_to_sphere_from_point`). Lights are numbered
+        parallelograms first, then these: sphere ``sphere_light[j]`` is light
+        ``L + j``, and its primitive's ``prim_light`` must say so. Its
+        radiance is the sphere's ``prim_emission`` (one-sided: outwards).
     render_defaults : mapping
         What a scene file says about rendering it (default empty): ``res``
         ``(width, height)`` of its film, ``spp`` (its sampler's
@@ -526,6 +533,7 @@ class Scene:
     point_light_position: np.ndarray | None = None
     point_light_intensity: np.ndarray | None = None
     render_defaults: Mapping = field(default_factory=dict)
+    sphere_light: np.ndarray | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str):
@@ -594,9 +602,28 @@ class Scene:
         _check_coordinates(points["point_light_position"], "point_light_position")
         lights.update(points)
         pl = tables["prim_light"]
-        if n_prim and not (pl.min() >= -1 and pl.max() < n_light):
-            raise ValueError(f"prim_light must be -1 or index a light (0 .. {n_light - 1}); got values in "
+        sph = _frozen(np.zeros(0) if self.sphere_light is None else self.sphere_light).reshape(-1)
+        if not (np.all(np.isfinite(sph)) and np.all(sph == np.round(sph))):
+            raise ValueError(f"sphere_light must hold sphere indices (integers); got {sph}")
+        sph = _frozen(sph, np.int64)
+        n_tri = tri.shape[0]
+        if sph.size and not (sph.min() >= 0 and sph.max() < sc.shape[0] and np.unique(sph).size == sph.size):
+            raise ValueError(f"sphere_light must hold distinct sphere indices in [0, {sc.shape[0]}); got {sph}")
+        if n_prim and not (pl.min() >= -1 and pl.max() < n_light + sph.size):
+            raise ValueError(f"prim_light must be -1 or index a light (0 .. {n_light + sph.size - 1}: "
+                             f"{n_light} parallelogram(s), then {sph.size} sphere light(s)); got values in "
                              f"[{pl.min()}, {pl.max()}]")
+        if np.any(pl[:n_tri] >= n_light):
+            raise ValueError("prim_light of a triangle must be -1 or index a parallelogram light")
+        expect = np.full(sc.shape[0], -1)
+        expect[sph] = n_light + np.arange(sph.size)
+        if not np.array_equal(np.where(pl[n_tri:] >= n_light, pl[n_tri:], -1), expect):
+            raise ValueError("sphere_light and prim_light disagree: sphere sphere_light[j] must have prim_light "
+                             f"{n_light} + j (the lights after the {n_light} parallelogram(s)), and no other "
+                             "sphere a light index >= that")
+        if sph.size and not np.all(tables["prim_emission"][n_tri + sph] >= 0):
+            raise ValueError("sphere lights need non-negative prim_emission")
+        lights["sphere_light"] = sph
         if not isinstance(self.camera, Camera):
             raise TypeError(f"camera must be a mcvar.scene.Camera; got {type(self.camera).__name__}")
         if self.environment is not None and not isinstance(self.environment, EnvironmentMap):
@@ -626,6 +653,11 @@ class Scene:
     @property
     def n_lights(self) -> int:
         return self.light_origin.shape[0]
+
+    @property
+    def n_sphere_lights(self) -> int:
+        """Spheres next-event estimation samples (lights ``L .. L + Ls - 1``)."""
+        return self.sphere_light.shape[0]
 
     @property
     def n_point_lights(self) -> int:
@@ -1176,6 +1208,8 @@ def scene_file(name: str) -> Path:
     """
     if not isinstance(name, str) or name not in SCENES:
         raise ValueError(f"name must be a built-in scene, one of {', '.join(SCENES)}; got {name!r}")
+    if name in NO_SCENE_FILE:
+        raise ValueError(f"scene {name!r} has no Mitsuba 3 file: {NO_SCENE_FILE[name]}")
     path = SCENE_FILES_DIR / f"{name}.xml"
     if not path.is_file():
         raise ValueError(f"{path} is missing: run mcvar.scene.write_scene_files() in a source checkout")
@@ -1187,7 +1221,164 @@ def write_scene_files(folder=None, *, res: int = 64, spp: int = 16) -> list:
     :data:`SCENE_FILES_DIR`), at ``mcvar render``'s default film and sample count.
     Returns the paths written."""
     folder = SCENE_FILES_DIR if folder is None else Path(folder)
-    return [save_scene(SCENES[name](), folder / f"{name}.xml", res=res, spp=spp) for name in SCENES]
+    return [save_scene(SCENES[name](), folder / f"{name}.xml", res=res, spp=spp) for name in SCENES
+            if name not in NO_SCENE_FILE]
 
 
-__all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR"]
+#: Built-in scenes :func:`save_scene` cannot write, and why (not shipped as files).
+NO_SCENE_FILE = {
+    "veach-mis": "its rough conductors use height-correlated Smith masking, Mitsuba's roughconductor the "
+                 "separable one (mcvar.interop.mitsuba refuses them)",
+}
+
+__all__ += ["save_scene", "scene_file", "write_scene_files", "SCENE_FILES_DIR", "NO_SCENE_FILE"]
+
+
+# --------------------------------------------------------------------------
+# veach-mis (issue 21): Veach's multiple importance sampling scene
+
+#: Roughness (GGX ``alpha``) of the four plates, top (nearest the lights) to bottom.
+VEACH_PLATE_ALPHA = (0.005, 0.02, 0.05, 0.1)
+#: Complex index of the plates' metal (grey, reflectance about 0.9 at normal incidence).
+VEACH_PLATE_ETA, VEACH_PLATE_K = 0.2, 3.0
+#: Radii of the four sphere lights, left to right (Veach 1997, fig. 9.2: ratio 3).
+VEACH_LIGHT_RADIUS = (1.0 / 30.0, 0.1, 0.3, 0.9)
+#: Power of each light: radiance ``VEACH_LIGHT_POWER / (4 pi^2 r^2)`` (sphere power ``4 pi^2 r^2 L``).
+VEACH_LIGHT_POWER = 40.0
+
+
+def veach_mis_scene(backdrop: float = 0.1) -> Scene:
+    """Veach's MIS scene: four glossy plates, four sphere lights of equal power.
+
+    Veach (1997), *Robust Monte Carlo Methods for Light Transport
+    Simulation*, fig. 9.2 (also Nori's and Mitsuba's ``veach-mi``): four
+    plates of increasing roughness (:data:`VEACH_PLATE_ALPHA`, GGX
+    :class:`mcvar.bsdf.Conductor`, a grey metal; Mitsuba's ``roughconductor``) stacked in front of the
+    camera, each tilted so that it mirrors the row of four spherical lights
+    (:data:`VEACH_LIGHT_RADIUS`, 27x apart in radius, equal power: radiance
+    ``P / (4 pi^2 r^2)``) back to the camera, and a dim Lambertian backdrop.
+    Each plate shows a glossy reflection of every light. Light sampling
+    (``direct_light``) is noisy where a large light meets a sharp lobe (top
+    plate, right light); BSDF sampling (``direct_bsdf``) is noisy where a
+    small light meets a rough lobe (bottom plate, left light); MIS
+    (``direct``) is good on both.
+
+    Parameters
+    ----------
+    backdrop : float
+        Albedo of the backdrop wall behind the plates, in [0, 1].
+
+    Notes
+    -----
+    Units: the camera at the origin looks along +z at the plates (z about
+    10), the lights sit at y = 6, z = 6, out of view. The spheres are
+    sampled lights (:attr:`Scene.sphere_light`): NEE draws a direction in
+    the cone each subtends.
+    """
+    check_positive(backdrop, "backdrop", allow_zero=True)
+    if backdrop > 1.0:
+        raise ValueError(f"backdrop must lie in [0, 1]; got {backdrop}")
+    cam = np.zeros(3)
+    light_row = np.array([0.0, 6.0, 6.0])
+    tris, mats = [], []
+    half_w, half_h = 4.0, 0.42
+    for i, y in enumerate((1.5, 0.5, -0.5, -1.5)):
+        center = np.array([0.0, y, 10.0])
+        n = (cam - center) / np.linalg.norm(cam - center) + \
+            (light_row - center) / np.linalg.norm(light_row - center)
+        n /= np.linalg.norm(n)
+        ex = np.array([1.0, 0.0, 0.0])
+        ey = np.cross(n, ex)                                    # in the plate, mostly +y
+        ey /= np.linalg.norm(ey)
+        if ey[1] < 0:
+            ey = -ey
+        q = [center - half_w * ex - half_h * ey, center - half_w * ex + half_h * ey,
+             center + half_w * ex + half_h * ey, center + half_w * ex - half_h * ey]
+        v = np.array(q)
+        if np.dot(np.cross(v[1] - v[0], v[2] - v[0]), n) < 0:   # the front faces the camera
+            v = v[::-1]
+        tris += _quad_triangles(v)
+        mats += [i, i]
+    back = np.array([[-12.0, -8.0, 14.0], [-12.0, 12.0, 14.0], [12.0, 12.0, 14.0], [12.0, -8.0, 14.0]])
+    tris += _quad_triangles(back)
+    mats += [4, 4]
+    n_tri = len(tris)
+    radii = np.array(VEACH_LIGHT_RADIUS)
+    centers = np.column_stack([np.array([-3.75, -1.25, 1.25, 3.75]), np.full(4, light_row[1]),
+                               np.full(4, light_row[2])])
+    radiance = VEACH_LIGHT_POWER / (4.0 * np.pi ** 2 * radii ** 2)
+    emission = np.zeros((n_tri + 4, 3))
+    emission[n_tri:] = radiance[:, None]
+    prim_light = np.full(n_tri + 4, -1)
+    prim_light[n_tri:] = np.arange(4)
+    materials = tuple(Conductor(VEACH_PLATE_ETA, VEACH_PLATE_K, alpha_x=a) for a in VEACH_PLATE_ALPHA) \
+        + (Lambertian(backdrop),) \
+        + (Lambertian(0.0),)
+    names = tuple(f"plate{i}" for i in range(4)) + ("backdrop", "light")
+    return Scene(
+        name="veach-mis", description="Veach's MIS scene: four glossy plates, four sphere lights of equal power",
+        triangles=np.array(tris), sphere_centers=centers, sphere_radii=radii,
+        prim_material=mats + [5] * 4, prim_emission=emission,
+        prim_two_sided_emission=np.zeros(n_tri + 4, dtype=bool), prim_light=prim_light,
+        prim_group=[0] * (n_tri + 4), materials=materials, material_names=names,
+        light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)), light_edge2=np.zeros((0, 3)),
+        light_radiance=np.zeros((0, 3)), sphere_light=np.arange(4),
+        camera=Camera(cam, np.array([0.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0]), 40.0),
+        ray_epsilon=1e-4)
+
+
+SCENES["veach-mis"] = veach_mis_scene
+__all__ += ["veach_mis_scene", "VEACH_PLATE_ALPHA", "VEACH_LIGHT_RADIUS", "VEACH_LIGHT_POWER"]
+
+
+# --------------------------------------------------------------------------
+# cornell-caustic (issue 21): a caustic that path tracing reaches only by chance
+
+def cornell_caustic_scene(light_scale: float = 0.1, eta: float = 1.5) -> Scene:
+    """The Cornell room with a glass sphere under a small, bright light.
+
+    The blocks are replaced by one :class:`mcvar.bsdf.Glass` sphere (radius
+    100, resting on the floor at the room's centre, x = 278, z = 279.5, right
+    under the light). The light quad keeps its centre and is shrunk by
+    ``light_scale`` along both edges (default 0.1: 1/100 of the area) with
+    its radiance raised by ``1 / light_scale^2``: the same power. The sphere
+    focuses the light into a bright caustic on the floor around its contact
+    point. Path tracing reaches the caustic only when a diffuse bounce on
+    the floor samples a direction that refracts twice through the sphere
+    *and* hits the small light (NEE cannot see the light through glass):
+    probability about the light's solid angle, 1/100 of the Cornell box's.
+    Light subpaths (light tracing, BDPT's ``t = 1`` strategies, photons)
+    start on the light and find the caustic directly.
+
+    Parameters
+    ----------
+    light_scale : float
+        Linear scale of the light quad, in (0, 1].
+    eta : float
+        Index of refraction of the sphere.
+    """
+    light_scale = check_positive(light_scale, "light_scale")
+    if light_scale > 1.0:
+        raise ValueError(f"light_scale must lie in (0, 1]; got {light_scale}")
+    eta = check_positive(eta, "eta")
+    spheres = (((278.0, 100.0, 279.5), 100.0, "glass", Glass(eta)),)
+    base = _cornell_common(blocks=False, extra_spheres=spheres)
+    origin, e1, e2 = base["light_origin"][0], base["light_edge1"][0], base["light_edge2"][0]
+    center = origin + 0.5 * (e1 + e2)
+    o2, f1, f2 = center - 0.5 * light_scale * (e1 + e2), light_scale * e1, light_scale * e2
+    tris = np.array(base["triangles"], dtype=np.float64)
+    is_light = np.asarray(base["prim_light"])[: tris.shape[0]] >= 0
+    quad = np.array([o2, o2 + f1, o2 + f1 + f2, o2 + f2])
+    tris[is_light] = np.array(_quad_triangles(quad))
+    emission = np.array(base["prim_emission"], dtype=np.float64)
+    radiance = np.asarray(CORNELL_LIGHT_RADIANCE) / light_scale ** 2
+    emission[: tris.shape[0]][is_light] = radiance
+    base.update(triangles=tris, prim_emission=emission, light_origin=o2[None], light_edge1=f1[None],
+                light_edge2=f2[None], light_radiance=radiance[None])
+    return Scene(name="cornell-caustic",
+                 description=f"Cornell room, glass sphere under a light of {light_scale ** 2:g} the area, same power",
+                 **base)
+
+
+SCENES["cornell-caustic"] = cornell_caustic_scene
+__all__ += ["cornell_caustic_scene"]

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validation import as_array, as_directions, as_unit_directions, as_unit_square, check_positive
-from .geometry import normalize
+from .geometry import Frame, normalize
 
 __all__ = [
     "square_to_uniform_disk_concentric",
@@ -50,6 +50,9 @@ __all__ = [
     "square_to_uniform_cone",
     "square_to_uniform_cone_pdf",
     "uniform_cone_to_square",
+    "square_to_sphere_from_point",
+    "square_to_sphere_from_point_pdf",
+    "sphere_from_point_to_square",
     "square_to_phong_lobe",
     "square_to_phong_lobe_pdf",
     "phong_lobe_to_square",
@@ -494,6 +497,148 @@ def uniform_cone_to_square(v, cos_theta_max) -> np.ndarray:
     v = _dirs(v, ndim=2)
     c = _cos_max(cos_theta_max)
     return _stack_u((1.0 - v[:, 1]) / (1.0 - c), _azimuth_to_u(v[:, 0], v[:, 2]))
+
+
+# --------------------------------------------------------------------------
+# a sphere seen from a point: the cone it subtends (spherical area lights)
+# --------------------------------------------------------------------------
+
+def _sphere_view(ref, center, radius):
+    """``(ref, axis, dc, sin2, one_minus_cos, inside)`` of spheres ``(center,
+    radius)`` seen from points ``ref`` (n, 3): the unit axis towards the
+    centre, the distance to it, ``sin^2 theta_max = r^2 / dc^2`` and
+    ``1 - cos theta_max`` computed as ``sin^2 / (1 + cos)`` (no cancellation
+    for a far, small sphere)."""
+    ref = as_array(ref, "ref", ndim=2, last=3)
+    n = ref.shape[0]
+    c = np.broadcast_to(as_array(center, "center", finite=True), (n, 3))
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (n,))
+    if not np.all(np.isfinite(r) & (r > 0.0)):
+        raise ValueError("radius must be finite and > 0")
+    v = c - ref
+    dc = np.sqrt(np.einsum("ij,ij->i", v, v))
+    inside = dc <= r
+    axis = v / np.where(dc > 0.0, dc, 1.0)[:, None]
+    sin2 = np.where(inside, 1.0, (r / np.where(inside, 1.0, dc)) ** 2)
+    one_minus_cos = sin2 / (1.0 + np.sqrt(np.maximum(0.0, 1.0 - sin2)))
+    return ref, c, r, axis, dc, sin2, one_minus_cos, inside
+
+
+def square_to_sphere_from_point(u, ref, center, radius):
+    """Directions from points ``ref`` towards a sphere, uniform in the cone it subtends.
+
+    The next-event sampler of spherical area lights (pbrt-v4,
+    ``Sphere::Sample(ctx, u)``; Shirley, Wang and Zimmerman 1996): seen from
+    outside, the sphere covers the cone ``cos theta >= cos theta_max =
+    sqrt(1 - r^2 / d_c^2)`` about the direction to its centre; a direction
+    uniform in that cone (:func:`square_to_uniform_cone`'s map, per point)
+    hits exactly the visible cap, with density ``1 / (2 pi (1 - cos
+    theta_max))``, the inverse of the solid angle subtended (no ``r^2 /
+    cos`` factor, no wasted samples on the back). From inside (or on) the
+    sphere every direction hits it: a point uniform by area (``1 / (4 pi
+    r^2)``) converted to solid angle, ``dist^2 / (4 pi r^2 |cos theta_l|)``.
+
+    Parameters
+    ----------
+    u : array_like, shape (n, 2)
+    ref : array_like, shape (n, 3)
+        Shading points.
+    center : array_like, shape (3,) or (n, 3)
+    radius : float or array_like, shape (n,)
+
+    Returns
+    -------
+    directions : ndarray, shape (n, 3)
+        Unit directions from ``ref`` to the sampled points.
+    distance : ndarray, shape (n,)
+        Distance to the sampled point on the sphere.
+
+    Notes
+    -----
+    The point is placed by the angle ``alpha`` at the centre (pbrt-v4):
+    ``d_s = d_c cos theta - sqrt(r^2 - d_c^2 sin^2 theta)`` is the distance
+    to the near intersection, ``cos alpha = (d_c^2 + r^2 - d_s^2) / (2 d_c
+    r)``; the point is ``center + r (sin alpha cos phi s + cos alpha (-axis)
+    + sin alpha sin phi t)``, so that it lies on the sphere to rounding even
+    at the cone's rim, where the ray is tangent. Density:
+    :func:`square_to_sphere_from_point_pdf`.
+    """
+    u = as_unit_square(u)
+    ref, c, r, axis, dc, sin2, omc, inside = _sphere_view(ref, center, radius)
+    if u.shape[0] != ref.shape[0]:
+        raise ValueError(f"u and ref must have one row per sample; got {u.shape[0]} and {ref.shape[0]}")
+    n = ref.shape[0]
+    x = np.empty((n, 3))
+    out = ~inside
+    if np.any(out):
+        cos_t = 1.0 - u[out, 0] * omc[out]
+        sin2_t = u[out, 0] * omc[out] * (1.0 + cos_t)               # 1 - cos^2, without cancellation
+        d, rr = dc[out], r[out]
+        ds = d * cos_t - np.sqrt(np.maximum(0.0, rr * rr - d * d * sin2_t))
+        cos_a = np.clip((d * d + rr * rr - ds * ds) / (2.0 * d * rr), -1.0, 1.0)
+        local = _direction(cos_a, _sin_from_cos(cos_a), _TWO_PI * u[out, 1])
+        fr = Frame(-axis[out])
+        x[out] = c[out] + rr[:, None] * fr.to_world(local)
+    if np.any(inside):
+        x[inside] = c[inside] + r[inside, None] * square_to_uniform_sphere(u[inside])
+    v = x - ref
+    dist = np.sqrt(np.einsum("ij,ij->i", v, v))
+    return v / np.where(dist > 0.0, dist, 1.0)[:, None], dist
+
+
+def square_to_sphere_from_point_pdf(v, ref, center, radius) -> np.ndarray:
+    """Solid-angle density of :func:`square_to_sphere_from_point` at unit directions ``v`` (n, 3).
+
+    Outside the sphere: ``1 / (2 pi (1 - cos theta_max))`` for directions in
+    the cone it subtends (its rim included), exactly 0 elsewhere. Inside:
+    ``t^2 / (4 pi r^2 |cos theta_l|)`` at the point ``t`` along ``v`` where
+    the ray leaves the sphere.
+    """
+    v = _dirs(v, ndim=2)
+    ref, c, r, axis, dc, sin2, omc, inside = _sphere_view(ref, center, radius)
+    if v.shape[0] != ref.shape[0]:
+        raise ValueError(f"v and ref must have one row per direction; got {v.shape[0]} and {ref.shape[0]}")
+    cos_axis = np.einsum("ij,ij->i", v, axis)
+    # inside the cone: 1 - cos_axis <= 1 - cos_max, compared without cancellation
+    in_cone = (cos_axis > 0.0) & (1.0 - cos_axis <= omc * (1.0 + 1e-9) + 4e-16)
+    with np.errstate(divide="ignore"):
+        pdf = np.where(in_cone & ~inside, 1.0 / (_TWO_PI * omc), 0.0)
+    if np.any(inside):
+        i = inside
+        oc = ref[i] - c[i]
+        b = np.einsum("ij,ij->i", oc, v[i])
+        t = -b + np.sqrt(np.maximum(0.0, b * b - np.einsum("ij,ij->i", oc, oc) + r[i] ** 2))
+        nrm = (oc + t[:, None] * v[i]) / r[i, None]
+        cos_l = np.abs(np.einsum("ij,ij->i", nrm, v[i]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pdf[i] = np.where(cos_l > 0.0, t * t / (4.0 * np.pi * r[i] ** 2 * cos_l), 0.0)
+    return pdf
+
+
+def sphere_from_point_to_square(v, ref, center, radius) -> np.ndarray:
+    """Inverse of :func:`square_to_sphere_from_point` for directions ``v`` (n, 3)
+    into the sphere (outside: the cone's ``(u0, u1)`` in the frame about the
+    centre's direction; inside: the exit point's :func:`uniform_sphere_to_square`)."""
+    v = _dirs(v, ndim=2)
+    ref, c, r, axis, dc, sin2, omc, inside = _sphere_view(ref, center, radius)
+    u = np.zeros((v.shape[0], 2))
+    out = ~inside
+    if np.any(out):
+        # the sampled point's azimuth about -axis equals the direction's about +axis
+        # (both frames share s and t up to the sign flip of the normal): use the point
+        vo, ro, co, rr = v[out], ref[out], c[out], r[out]
+        oc = ro - co
+        b = np.einsum("ij,ij->i", oc, vo)
+        t = -b - np.sqrt(np.maximum(0.0, b * b - np.einsum("ij,ij->i", oc, oc) + rr ** 2))
+        local = Frame(-axis[out]).to_local((oc + t[:, None] * vo) / rr[:, None])
+        cos_t = np.einsum("ij,ij->i", vo, axis[out])
+        u[out] = _stack_u((1.0 - cos_t) / omc[out], _azimuth_to_u(local[:, 0], local[:, 2]))
+    if np.any(inside):
+        oc = ref[inside] - c[inside]
+        b = np.einsum("ij,ij->i", oc, v[inside])
+        t = -b + np.sqrt(np.maximum(0.0, b * b - np.einsum("ij,ij->i", oc, oc) + r[inside] ** 2))
+        u[inside] = uniform_sphere_to_square((oc + t[:, None] * v[inside]) / r[inside, None])
+    return u
 
 
 def _exponent(exponent) -> float:

@@ -240,3 +240,89 @@ def test_environment_origins_lie_on_the_disk_that_covers_the_scene():
     moved = p[env] + 0.1 * origins.radius * towards
     got_pos, _ = pdf_le(scene, light[env], moved, w[env])
     np.testing.assert_array_equal(got_pos, 0.0)
+
+
+# ---------------------------------------------------------------------------
+# Sphere lights (issue 21): the cone sampler against pdf_li
+
+def _sphere_light_scene(center=(0.0, 3.0, 0.0), radius=0.5, radiance=2.0, quad=True):
+    """A facing plate (y = 0, normal +y), one sphere light above it, and a
+    parallelogram light beside it when ``quad`` (two emitter kinds, one scene)."""
+    tris = _quad((-2, 0, -2), (0, 0, 4), (4, 0, 0))          # normal cross(e1, e2) = +y
+    n_tri = len(tris)
+    lo, le1, le2 = np.array([3.0, 2.0, -0.5]), np.array([1.0, 0, 0]), np.array([0, 0, 1.0])
+    if quad:
+        tris += _quad(lo, le1, le2)                              # normal -y: faces the plate
+    n_tri = len(tris)
+    emission = np.zeros((n_tri + 1, 3))
+    emission[n_tri] = radiance
+    prim_light = np.full(n_tri + 1, -1)
+    if quad:
+        emission[2:4] = 1.0
+        prim_light[2:4] = 0
+    prim_light[n_tri] = 1 if quad else 0
+    return Scene(name="sphere-light", triangles=np.array(tris), sphere_centers=[center], sphere_radii=[radius],
+                 prim_material=[0] * (n_tri + 1), prim_emission=emission,
+                 prim_two_sided_emission=np.zeros(n_tri + 1, bool), prim_light=prim_light,
+                 prim_group=[0] * (n_tri + 1), materials=(Lambertian(0.5),), material_names=("white",),
+                 light_origin=lo[None] if quad else np.zeros((0, 3)),
+                 light_edge1=le1[None] if quad else np.zeros((0, 3)),
+                 light_edge2=le2[None] if quad else np.zeros((0, 3)),
+                 light_radiance=np.ones((1, 3)) if quad else np.zeros((0, 3)), sphere_light=[0],
+                 camera=Camera((0, 5, -8), (0, 0, 0), (0, 1, 0), 40.0))
+
+
+def test_sample_li_of_a_sphere_light_is_pdf_li_of_the_point_it_drew():
+    """A sphere light's NEE pdf is ``pdf_li`` of the sphere point it drew, seen
+    from the same shading point (outside, near the rim, and from inside); the
+    point lies on the sphere and ``le`` is its radiance (0 from inside)."""
+    scene = _sphere_light_scene()
+    em = Emitters(scene)
+    assert em.n_emitters == 2 and not em.single_quad
+    rng = np.random.default_rng(SEED + 1)
+    n = 6000
+    c, r = scene.sphere_centers[0], scene.sphere_radii[0]
+    p = _points(rng, n)
+    p[: n // 10] = c + rng.uniform(-0.2, 0.2, (n // 10, 3))                 # inside the sphere
+    p[n // 10: n // 5] = c + np.array([0.0, -(r + 1e-2), 0.0])          # just outside: a wide cone
+    p[n // 5: n // 5 + 50] = c + np.array([0.0, -r * (1 + 1e-7), 0.0])  # on the sphere (a path's vertex on it)
+    w, dist, le, pdf, light = em.sample_li(np.ascontiguousarray(p.T), rng.random((2, n)), rng.random(n))
+    w, le = w.T, le.T
+    on = np.flatnonzero(light[n // 5: n // 5 + 50] == -3) + n // 5
+    assert on.size and np.all(pdf[on] == 0) and np.all(le[on] == 0)     # a convex light cannot light itself
+    sel = np.flatnonzero((light == -3) & (pdf > 0))
+    assert sel.size > n // 3
+    x = p[sel] + w[sel] * dist[sel, None]
+    np.testing.assert_allclose(np.linalg.norm(x - c, axis=1), r, rtol=1e-9)
+    prim = np.full(sel.size, scene.n_triangles)
+    np.testing.assert_allclose(pdf[sel], em.pdf_li(prim, p[sel], x), rtol=1e-9)
+    assert np.all(pdf[sel] > 0)
+    inside = np.linalg.norm(p[sel] - c, axis=1) < r
+    assert inside.sum() > 100
+    np.testing.assert_array_equal(le[sel][inside], 0.0)
+    np.testing.assert_allclose(le[sel][~inside], 2.0)
+    # from outside, the density is the inverse of the subtended solid angle (times the choice)
+    d2 = ((p[sel][~inside] - c) ** 2).sum(axis=1)
+    omc = 1.0 - np.sqrt(1.0 - r * r / d2)
+    np.testing.assert_allclose(pdf[sel][~inside], 0.5 / (2 * np.pi * omc), rtol=1e-6)
+    q = np.flatnonzero(light == 0)
+    assert q.size > 500
+
+
+def test_sphere_light_irradiance_on_a_facing_plane_is_l_pi_r2_over_d2():
+    """Analytic: a sphere of radiance L seen from distance d (to its centre)
+    gives a facing plane's point on the axis the irradiance ``L pi (r/d)^2``
+    (the cone's projected solid angle ``pi sin^2 theta_max``). NEE's estimator
+    ``le cos / pdf`` must hit it within 5 standard errors."""
+    scene = _sphere_light_scene(center=(0.0, 2.0, 0.0), radius=0.6, radiance=3.0, quad=False)
+    em = Emitters(scene)
+    rng = np.random.default_rng(SEED + 2)
+    n = 200_000
+    p = np.zeros((3, n))
+    w, dist, le, pdf, light = em.sample_li(p, rng.random((2, n)), None)
+    est = le[0] * np.maximum(w[1], 0.0) / pdf
+    exact = 3.0 * np.pi * (0.6 / 2.0) ** 2
+    se = est.std(ddof=1) / np.sqrt(n)
+    assert abs(est.mean() - exact) < 5 * se + 1e-12, (est.mean(), exact, se)
+    # the cone sampler's estimate is nearly exact (cos varies little over the cap): a sharp check
+    assert se < 2e-3 * exact

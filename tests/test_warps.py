@@ -15,6 +15,9 @@ from mcvar.testing import (check_extremes, check_inverse, check_pdf_normalized, 
 TWO_PI = 2.0 * np.pi
 SEED = 20_241_122_031
 N_CHI2 = 200_000
+SPH_C = np.array([0.0, 3.0, 0.0])            # sin theta_max = 1/3
+SPH_OFF = np.array([1.0, 2.0, -1.5])
+SPH_IN = np.array([0.4, -0.3, 0.2])
 
 # (id, sampler, pdf, inverse, domain, chi2 bounds, periodic u1)
 ALPHA, AX, AY, K, CMAX = 0.3, 0.15, 0.6, 20.0, 0.8
@@ -32,6 +35,17 @@ WARPS = [
     ("cone", lambda u: w.square_to_uniform_cone(u, CMAX),
      lambda v: w.square_to_uniform_cone_pdf(v, CMAX),
      lambda v: w.uniform_cone_to_square(v, CMAX), "sphere", ((CMAX, 1.0), (0.0, TWO_PI)), True),
+    # a sphere seen from outside (on the +y axis: cone bounds), off-axis, and from inside
+    ("sphere_cone", lambda u: w.square_to_sphere_from_point(u, np.zeros((len(u), 3)), SPH_C, 1.0)[0],
+     lambda v: w.square_to_sphere_from_point_pdf(v, np.zeros((len(v), 3)), SPH_C, 1.0),
+     lambda v: w.sphere_from_point_to_square(v, np.zeros((len(v), 3)), SPH_C, 1.0), "sphere",
+     ((np.sqrt(8.0 / 9.0), 1.0), (0.0, TWO_PI)), True),
+    ("sphere_cone_offaxis", lambda u: w.square_to_sphere_from_point(u, np.zeros((len(u), 3)), SPH_OFF, 0.8)[0],
+     lambda v: w.square_to_sphere_from_point_pdf(v, np.zeros((len(v), 3)), SPH_OFF, 0.8),
+     lambda v: w.sphere_from_point_to_square(v, np.zeros((len(v), 3)), SPH_OFF, 0.8), "sphere", None, True),
+    ("sphere_inside", lambda u: w.square_to_sphere_from_point(u, np.full((len(u), 3), 0.1), SPH_IN, 1.0)[0],
+     lambda v: w.square_to_sphere_from_point_pdf(v, np.full((len(v), 3), 0.1), SPH_IN, 1.0),
+     lambda v: w.sphere_from_point_to_square(v, np.full((len(v), 3), 0.1), SPH_IN, 1.0), "sphere", None, True),
     ("phong", lambda u: w.square_to_phong_lobe(u, K), lambda v: w.square_to_phong_lobe_pdf(v, K),
      lambda v: w.phong_lobe_to_square(v, K), "hemisphere", None, True),
     ("beckmann", lambda u: w.square_to_beckmann(u, ALPHA), lambda v: w.square_to_beckmann_pdf(v, ALPHA),
@@ -175,6 +189,15 @@ def test_pdf_integrates_to_one(name, sample, pdf, inverse, domain, bounds, perio
         def pdf_on_square(p, pdf=pdf):
             return pdf(np.stack([p[:, 0] * (1 - p[:, 1]), p[:, 0] * p[:, 1]], axis=-1)) * p[:, 0]
         pdf = pdf_on_square
+    if name == "sphere_cone_offaxis":
+        # the cone's rim cuts the (cos theta, phi) cells: integrate in the frame
+        # about the centre's direction, where the rim is the cell edge cos = cos_max
+        from mcvar.geometry import Frame
+        fr, cmax = Frame(SPH_OFF / np.linalg.norm(SPH_OFF)), np.sqrt(1.0 - 0.64 / SPH_OFF.dot(SPH_OFF))
+
+        def pdf_in_cone_frame(v, pdf=pdf):
+            return pdf(fr.to_world(np.asarray(v, float)))
+        pdf, bounds = pdf_in_cone_frame, ((cmax, 1.0), (0.0, TWO_PI))
     r = check_pdf_normalized(pdf, domain, bounds=bounds, atol=1e-6)
     assert r.passed, r.message
 
@@ -380,3 +403,30 @@ def test_bad_parameters():
         w.area_to_solid_angle_pdf(1.0, [0, 0, 0], [0, 1, 0], [0, 0, 0])
     with pytest.raises(ValueError, match="must broadcast together"):
         w.area_to_solid_angle_pdf(np.ones(3), np.zeros((2, 3)), [0, 1, 0], [0, -1, 0])
+
+
+def test_sphere_from_point_bad_input_and_known_values():
+    u = np.full((2, 2), 0.5)
+    ref = np.zeros((2, 3))
+    with pytest.raises(ValueError, match="radius"):
+        w.square_to_sphere_from_point(u, ref, SPH_C, 0.0)
+    with pytest.raises(ValueError, match="ref"):
+        w.square_to_sphere_from_point(u, np.full((2, 3), np.nan), SPH_C, 1.0)
+    with pytest.raises(ValueError, match="one row per sample"):
+        w.square_to_sphere_from_point(u, np.zeros((3, 3)), SPH_C, 1.0)
+    # u0 = 0: the direction to the centre, at distance d - r; pdf 1 / (2 pi (1 - cos theta_max))
+    v, t = w.square_to_sphere_from_point(np.array([[0.0, 0.3]]), np.zeros((1, 3)), SPH_C, 1.0)
+    np.testing.assert_allclose(v, [[0.0, 1.0, 0.0]], atol=1e-15)
+    np.testing.assert_allclose(t, [2.0], rtol=1e-15)
+    cmax = np.sqrt(8.0 / 9.0)
+    np.testing.assert_allclose(w.square_to_sphere_from_point_pdf(v, np.zeros((1, 3)), SPH_C, 1.0),
+                               [1.0 / (2 * np.pi * (1 - cmax))], rtol=1e-12)
+    # u0 = 1: the rim, tangent: the point lies on the sphere at the cone's edge
+    v, t = w.square_to_sphere_from_point(np.array([[1.0, 0.7]]), np.zeros((1, 3)), SPH_C, 1.0)
+    np.testing.assert_allclose(v[0, 1], cmax, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(v * t[:, None] - SPH_C, axis=1), [1.0], rtol=1e-12)
+    # a far, tiny sphere: 1 - cos theta_max without cancellation (r/d = 1e-9)
+    p = w.square_to_sphere_from_point_pdf(np.array([[0.0, 1.0, 0.0]]), np.zeros((1, 3)), [0.0, 1.0, 0.0], 1e-9)
+    np.testing.assert_allclose(p, [1.0 / (np.pi * 1e-18)], rtol=1e-9)
+    # outside the cone: exactly 0
+    assert w.square_to_sphere_from_point_pdf(np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 3)), SPH_C, 1.0)[0] == 0.0

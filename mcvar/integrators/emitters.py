@@ -5,7 +5,11 @@
   area lights and the environment) and a point on it (uniform by area on a
   parallelogram, :mod:`mcvar.envmap`'s sampling for the environment), with
   the solid-angle density ``p_A r^2 / cos theta_l`` (lecture 'Light
-  Sampling'; :func:`mcvar.warps.area_to_solid_angle_pdf`). Its partner
+  Sampling'; :func:`mcvar.warps.area_to_solid_angle_pdf`); on a sphere
+  light (``Scene.sphere_light``), a direction uniform in the cone the
+  sphere subtends, density ``1 / (2 pi (1 - cos theta_max))`` (pbrt-v4's
+  ``Sphere::Sample(ctx, u)``, :func:`mcvar.warps.square_to_sphere_from_point`;
+  from inside, uniform area converted to solid angle). Its partner
   :meth:`Emitters.pdf_li` gives that density for an emitter *hit* by BSDF
   sampling (the MIS weight of emission found by chance).
 * Light subpaths (:class:`LightOrigins`, :func:`sample_le`, :func:`pdf_le`,
@@ -29,6 +33,7 @@ from ..geometry import Frame, _clip_halfplanes, polygon_pixel_coverage
 from ..warps import (_rectangle_soa_frame, _rectangle_solid_angle_soa, _spherical_rectangle_soa,
                      area_to_solid_angle_pdf, square_to_cosine_hemisphere,
                      square_to_cosine_hemisphere_pdf, square_to_uniform_disk_concentric,
+                     square_to_sphere_from_point, square_to_sphere_from_point_pdf,
                      square_to_uniform_sphere, square_to_uniform_triangle)
 
 __all__ = ["Emitters", "LightOrigins", "VisibleLights", "sample_le", "pdf_le", "LIGHT_SAMPLING",
@@ -61,7 +66,8 @@ class Emitters:
     Attributes
     ----------
     n_emitters : int
-        Area lights, point lights, plus one for an environment.
+        Parallelogram lights, sphere lights, point lights, plus one for an
+        environment.
     select_pdf : float
         ``1 / n_emitters`` (uniform choice), 0 without emitters.
     single_quad : bool
@@ -77,8 +83,14 @@ class Emitters:
             [_rectangle_soa_frame(e1, e2) for e1, e2 in zip(scene.light_edge1, scene.light_edge2)]
         self.n_lights = scene.n_lights
         self.n_points = scene.n_point_lights
+        self.n_spheres = scene.n_sphere_lights
         self.env = scene.environment
-        self.n_emitters = self.n_lights + self.n_points + (1 if self.env is not None else 0)
+        self.n_emitters = self.n_lights + self.n_spheres + self.n_points + (1 if self.env is not None else 0)
+        # per sphere light: centre (Ls, 3), radius (Ls,), radiance (3, Ls)
+        sph = scene.sphere_light
+        self.sphere_center = scene.sphere_centers[sph]
+        self.sphere_radius = scene.sphere_radii[sph]
+        self.sphere_radiance_soa = np.ascontiguousarray(scene.prim_emission[scene.n_triangles + sph].T)
         self.select_pdf = 1.0 / self.n_emitters if self.n_emitters else 0.0
         self.light_area = scene.light_area
         self.light_normal = scene.light_normal
@@ -87,14 +99,15 @@ class Emitters:
         self.normal_soa = np.ascontiguousarray(self.light_normal.T)          # (3, L)
         self.radiance_soa = np.ascontiguousarray(scene.light_radiance.T)     # (3, L)
         self.pdf_area = self.select_pdf / self.light_area if self.n_lights else np.zeros(0)
-        self.single_quad = self.n_lights == 1 and self.env is None and self.n_points == 0
+        self.single_quad = self.n_lights == 1 and self.env is None and self.n_points == 0 and self.n_spheres == 0
 
     # -- next-event estimation -------------------------------------------------
 
     def choose(self, u_sel, m: int) -> np.ndarray:
         """Emitter index of ``m`` samples from ``u_sel`` in [0, 1] (None with one
-        emitter): lights ``0 .. L-1``, point lights ``L .. L+P-1``, then
-        ``L + P`` = the environment."""
+        emitter): parallelograms ``0 .. L-1``, sphere lights ``L .. L+Ls-1``,
+        point lights ``L+Ls .. L+Ls+P-1``, then ``L + Ls + P`` = the
+        environment."""
         n_em = self.n_emitters
         if n_em <= 1:
             return np.zeros(m, dtype=np.int64)
@@ -125,8 +138,10 @@ class Emitters:
             Solid-angle density of ``w`` including the emitter choice; 0
             where the sample cannot contribute (back side, edge-on).
         light : ndarray of int, shape (m,)
-            Light index, -1 for the environment (for shadow keys), -2 for a
-            point light.
+            Parallelogram light index, -1 for the environment (for shadow
+            keys), -2 for a point light, -3 for a sphere light (its shadow
+            ray stops short of the sampled point on the near cap, so every
+            primitive stays a candidate occluder).
 
         Notes
         -----
@@ -149,10 +164,15 @@ class Emitters:
         if self.n_lights and np.any(on_light):
             sel = np.flatnonzero(on_light)
             w[:, sel], dist[sel], le[:, sel], pdf[sel] = self._area(p[:, sel], u[:, sel], k[sel])
-        on_point = (k >= self.n_lights) & (k < self.n_lights + self.n_points)
+        n_ls = self.n_lights + self.n_spheres
+        on_sphere = (k >= self.n_lights) & (k < n_ls)
+        if self.n_spheres and np.any(on_sphere):
+            sel = np.flatnonzero(on_sphere)
+            w[:, sel], dist[sel], le[:, sel], pdf[sel] = self._sphere(p[:, sel], u[:, sel], k[sel] - self.n_lights)
+        on_point = (k >= n_ls) & (k < n_ls + self.n_points)
         if self.n_points and np.any(on_point):
             sel = np.flatnonzero(on_point)
-            j = k[sel] - self.n_lights
+            j = k[sel] - n_ls
             v = np.take(self.scene.point_light_position, j, axis=0).T - p[:, sel]
             d2 = _dot(v, v)
             r = np.sqrt(d2)
@@ -160,13 +180,30 @@ class Emitters:
             dist[sel] = r
             le[:, sel] = np.take(self.scene.point_light_intensity, j, axis=0).T / np.maximum(d2, 1e-300)
             pdf[sel] = self.select_pdf
-        if self.env is not None and not np.all(on_light | on_point):
-            sel = np.flatnonzero(~(on_light | on_point))
+        if self.env is not None and not np.all(on_light | on_sphere | on_point):
+            sel = np.flatnonzero(~(on_light | on_sphere | on_point))
             w_env, pdf_env = self.env.sample(u[:, sel].T)
             w[:, sel] = w_env.T
             le[:, sel] = self.env.radiance(w_env).T
             pdf[sel] = self.select_pdf * pdf_env
-        return w, dist, le, pdf, np.where(on_light, k, np.where(on_point, -2, -1))
+        return w, dist, le, pdf, np.where(on_light, k, np.where(on_point, -2, np.where(on_sphere, -3, -1)))
+
+    def _sphere(self, p, u, j):
+        """Sphere lights ``j`` sampled by the cone they subtend from ``p`` (SoA):
+        ``(w, dist, le, pdf)``, the pdf including the emitter choice; ``le`` is 0
+        from inside a one-sided (outward) sphere."""
+        pa = np.asarray(p, dtype=np.float64).T
+        c, r = self.sphere_center[j], self.sphere_radius[j]
+        w, dist = square_to_sphere_from_point(np.clip(np.asarray(u, dtype=np.float64).T, 0.0, 1.0), pa, c, r)
+        # a shading point on the sphere itself (within the ray offset): a convex
+        # emitter cannot light itself, and its cone degenerates to points at p
+        dc = np.sqrt(np.einsum("ij,ij->i", pa - c, pa - c))
+        ok = (np.abs(dc - r) > self.scene.ray_epsilon) & (dist > 0.0)
+        w[~ok] = (0.0, 1.0, 0.0)
+        pdf = np.where(ok, self.select_pdf * square_to_sphere_from_point_pdf(w, pa, c, r), 0.0)
+        le = np.take(self.sphere_radiance_soa, j, axis=1)
+        le = np.where((dc > r) & (pdf > 0.0), le, 0.0)
+        return np.ascontiguousarray(w.T), dist, le, pdf
 
     def _area(self, p, u, li):
         """Uniform points on lights ``li`` (None: the single light) seen from ``p``, SoA."""
@@ -254,6 +291,15 @@ class Emitters:
         """
         light = np.take(self.scene.prim_light, prim)
         pdf = np.zeros(prim.shape[0])
+        sphere = light >= self.n_lights
+        if np.any(sphere):
+            j = light[sphere] - self.n_lights
+            o = np.asarray(origins, dtype=np.float64)[sphere]
+            d = np.asarray(points, dtype=np.float64)[sphere] - o
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            pdf[sphere] = self.select_pdf * square_to_sphere_from_point_pdf(d, o, self.sphere_center[j],
+                                                                            self.sphere_radius[j])
+            light = np.where(sphere, -1, light)
         is_light = light >= 0
         if np.any(is_light) and self.rect:
             for k in np.unique(light[is_light]):

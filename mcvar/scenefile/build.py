@@ -785,8 +785,16 @@ class _Builder:
                np.concatenate(parts) if parts else np.zeros(shape, dtype=dtype))
         emission = np.concatenate([cat(self.tri_emission, (0, 3)),
                                    np.array(self.sphere_emission, dtype=np.float64).reshape(-1, 3)])
-        prim_light = np.concatenate([cat(self.tri_light, (0,), np.int64), np.full(n_sph, -1)])
         lights = np.array([np.concatenate(light) for light in self.lights]).reshape(-1, 12)
+        # a sphere emitting outwards only is a sphere light (NEE samples the cone it
+        # subtends, as Mitsuba samples its sphere emitters); a two-sided one (the
+        # furnace seen from inside) stays emission found by BSDF sampling
+        sph_emits = np.any(emission[n_tri:] > 0.0, axis=1) & \
+            ~np.isin(np.arange(n_sph), sorted(self.two_sided_spheres))
+        sphere_light = np.flatnonzero(sph_emits)
+        sph_light = np.full(n_sph, -1)
+        sph_light[sphere_light] = lights.shape[0] + np.arange(sphere_light.size)
+        prim_light = np.concatenate([cat(self.tri_light, (0,), np.int64), sph_light])
         points = np.array([np.concatenate(pt) for pt in self.points]).reshape(-1, 6)
         geometry = [tris.reshape(-1, 3)] + [c[None] + np.array([[r], [-r]]) for c, r in self.spheres]
         pts = np.concatenate(geometry) if n_tri + n_sph else np.zeros((1, 3))
@@ -808,6 +816,7 @@ class _Builder:
             light_origin=lights[:, 0:3], light_edge1=lights[:, 3:6], light_edge2=lights[:, 6:9],
             light_radiance=lights[:, 9:12],
             point_light_position=points[:, 0:3], point_light_intensity=points[:, 3:6],
+            sphere_light=sphere_light,
             environment=self.environment,
             checker_period=self.checker,
             ray_epsilon=self._ray_epsilon(extent),
