@@ -641,6 +641,35 @@ _register(Exercise(
 
 
 # --------------------------------------------------------------------------
+# 10 choosing a method
+
+#: Exercise 10.efficiency: MSE (per pixel, against the reference) and wall seconds of three renders.
+_EFF_MSE = np.array([1e-3, 4e-4, 2e-2, 5e-6])
+_EFF_SECONDS = np.array([2.0, 5.0, 0.5, 8.0])
+#: By hand: 1 / (MSE x time) (Veach 1997, sec. 2.4.3): the first two are equally efficient.
+_EFF_VALUES = np.array([500.0, 500.0, 100.0, 25_000.0])
+
+_register(Exercise(
+    "10.efficiency", "Efficiency on one scale", "If there are so many good sampling methods, why not combine them?",
+    ("efficiency",),
+    lambda efficiency, verbose=True: grade_values(efficiency, (_EFF_MSE, _EFF_SECONDS), _EFF_VALUES, rtol=1e-12,
+                                                  name="10.efficiency", verbose=verbose)))
+
+#: Exercise 10.rounds: the image means (rounds, pixels) of the rounds an equal-time run
+#: rendered, and each round's spp; the run's estimate weighs each round by its spp.
+_ROUND_MEANS = np.array([[0.30, 1.0], [0.36, 2.0], [0.33, 4.0]])
+_ROUND_SPP = np.array([4, 8, 4])
+#: By hand: (4 * 0.30 + 8 * 0.36 + 4 * 0.33) / 16 and (4 + 16 + 16) / 16.
+_ROUND_VALUES = np.array([0.3375, 2.25])
+
+_register(Exercise(
+    "10.rounds", "An equal-time run's estimate from its rounds", "Monte Carlo Estimator",
+    ("combine_rounds",),
+    lambda combine_rounds, verbose=True: grade_values(combine_rounds, (_ROUND_MEANS, _ROUND_SPP), _ROUND_VALUES,
+                                                      rtol=1e-12, name="10.rounds", verbose=verbose)))
+
+
+# --------------------------------------------------------------------------
 # 12 find the bug
 
 def _method(obj, name):

@@ -12,9 +12,10 @@ A teacher checks every grader against them with::
 from ._base import Solution
 from .nb01_06 import SOLUTIONS as _S01
 from .nb07_09 import SOLUTIONS as _S07
+from .nb10 import SOLUTIONS as _S10
 from .nb11 import SOLUTIONS as _S11
 from .nb12 import SOLUTIONS as _S12
 
-SOLUTIONS = {**_S01, **_S07, **_S11, **_S12}
+SOLUTIONS = {**_S01, **_S07, **_S10, **_S11, **_S12}
 
 __all__ = ["Solution", "SOLUTIONS"]
