@@ -103,7 +103,8 @@ def test_auto_chooses_the_bvh_above_the_threshold_only():
     coarse = load_scene("cornell")
     assert coarse.n_triangles <= BVH_MIN_TRIANGLES
     assert Tracer(coarse).accel == "groups"
-    assert Tracer(subdivide(coarse, 2)).accel == "bvh"
+    assert Tracer(subdivide(coarse, 5)).accel == "groups"           # 752 triangles
+    assert Tracer(subdivide(coarse, 6)).accel == "bvh"              # 1 082 triangles
     with pytest.raises(ValueError, match="accel"):
         Tracer(coarse, accel="octree")
 
@@ -127,7 +128,8 @@ def test_subdivided_box_renders_the_coarse_image():
     """Same image in expectation: per-channel image means within 5 standard
     errors (independent seeds), Sidak over 3 channels is below that margin."""
     coarse = load_scene("cornell")
-    fine = subdivide(coarse, 4)
+    fine = subdivide(coarse, 6)                     # 1 082 triangles: the BVH
+    assert Tracer(fine).accel == "bvh"
     kw = dict(integrator="path", spp=32, res=16, sampler="random")
     ra = render(coarse, rng=np.random.default_rng(SEED), **kw)
     rb = render(fine, rng=np.random.default_rng(SEED + 1), **kw)

@@ -168,8 +168,10 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     chains : int
         Chains run at once (one vectorised wavefront of ``chains`` paths per
         step); capped at ``spp * W * H``.
-    sigma, p_large
-        Kelemen's mutations (:func:`mcvar.mcmc.metropolis`).
+    sigma : float
+        Kelemen's small-step size (:func:`mcvar.mcmc.metropolis`).
+    p_large : float
+        Probability of a large step (a fresh uniform state).
     n_bootstrap : int or None
         Independent paths that estimate ``b`` and seed the chains; None:
         ``max(4 * chains, N // 4)`` for ``N`` mutations (pbrt uses 100 000

@@ -602,7 +602,9 @@ def radiosity(scene: Scene, settings: RadiositySettings | None = None, *, rng=No
         3 900 sides in the Cornell box).
     rays_per_side, emitter_rays : int
         As in :func:`form_factors`.
-    solver, tol
+    solver : {'jacobi', 'direct'}
+        As in :func:`solve_radiosity`.
+    tol : float
         As in :func:`solve_radiosity`.
 
     Returns
