@@ -117,7 +117,9 @@ def test_refused_method_gives_its_reason_in_csv_and_html(report):
 def test_efficiency_is_one_over_mse_times_time_of_the_recorded_medians(report):
     out, paths = report
     runs = _read(paths["runs"])
-    ref = {s: np.load(next((out / ".cache").glob(f"reference-{s}-*.npz")))["value"]
+    # 'reference-cornell-*' would also match cornell-point's file: the key after the scene has no '-'
+    ref = {s: np.load(next(p for p in (out / ".cache").glob(f"reference-{s}-*.npz")
+                           if "-" not in p.stem[len(f"reference-{s}-"):]))["value"]
            for s in ("cornell", "cornell-point")}
     images = np.load(out / "compare_images.npz")
     checked = 0
