@@ -21,6 +21,8 @@ from mcvar.integrators.sppm import sppm
 from mcvar.scene import Camera, Scene, load_scene
 from mcvar.tracer import Tracer
 
+from cube_quads import unit_cube_quads  # tests/cube_quads.py
+
 SEED = 161803398874
 Z = 5.0
 
@@ -28,21 +30,7 @@ Z = 5.0
 def _lit_cube(albedo=0.5):
     """Closed unit cube, inward normals, every surface Lambertian ``albedo``, and a
     0.2 x 0.2 area light facing down 0.01 below the ceiling (also of that albedo)."""
-    quads = []
-    for axis in range(3):
-        for lo in (0.0, 1.0):
-            a, b = (axis + 1) % 3, (axis + 2) % 3
-            q = []
-            for u, v in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                p = np.zeros(3)
-                p[axis], p[a], p[b] = lo, u, v
-                q.append(p)
-            q = np.array(q)
-            inward = np.zeros(3)
-            inward[axis] = 1.0 if lo == 0.0 else -1.0
-            if np.cross(q[1] - q[0], q[2] - q[0]) @ inward < 0:
-                q = q[::-1]
-            quads.append(q)
+    quads = unit_cube_quads()
     origin, e1, e2 = np.array([0.4, 0.99, 0.4]), np.array([0.2, 0, 0]), np.array([0, 0, 0.2])
     if np.cross(e1, e2)[1] > 0:        # emit downwards
         e1, e2 = e2, e1

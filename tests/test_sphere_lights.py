@@ -19,6 +19,8 @@ from mcvar.integrators.photon import trace_photons
 from mcvar.scene import Camera, Scene
 from mcvar.testing import sidak_significance
 
+from cube_quads import unit_cube_quads  # tests/cube_quads.py
+
 SEED = 21_4242
 RES = 16
 BLOCK = 4
@@ -29,21 +31,7 @@ def sphere_lit_cube(rho=0.5, light=True):
     """Closed unit cube (inward normals, Lambertian ``rho``) with an emitting
     sphere in it: a sampled light (``sphere_light``) or, with ``light=False``,
     emission that only BSDF sampling finds."""
-    quads = []
-    for axis in range(3):
-        for lo in (0.0, 1.0):
-            a, b = (axis + 1) % 3, (axis + 2) % 3
-            q = []
-            for u, v in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                p = np.zeros(3)
-                p[axis], p[a], p[b] = lo, u, v
-                q.append(p)
-            q = np.array(q)
-            inward = np.zeros(3)
-            inward[axis] = 1.0 if lo == 0.0 else -1.0
-            if np.cross(q[1] - q[0], q[2] - q[0]) @ inward < 0:
-                q = q[::-1]
-            quads.append(q)
+    quads = unit_cube_quads()
     tris = np.array([t for q in quads for t in ([q[0], q[1], q[2]], [q[0], q[2], q[3]])])
     n = tris.shape[0] + 1
     emission = np.zeros((n, 3))
