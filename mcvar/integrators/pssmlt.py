@@ -203,6 +203,47 @@ def _mutate_soa(xT, sigma: float, p_large: float, rng):
     return yT, large
 
 
+@dataclass(frozen=True, eq=False)
+class _Proposal:
+    """One lockstep step's proposals: states ``(D, m)``, their ``f``, pixel and ``rgb / f``, the
+    large-step mask, the acceptance probabilities ``a = min(1, f(y) / f(x))`` and the coin's verdicts."""
+
+    xT: np.ndarray
+    f: np.ndarray
+    pix: np.ndarray
+    rgbn: np.ndarray
+    large: np.ndarray
+    a: np.ndarray
+    accept: np.ndarray
+
+
+class _Chains:
+    """A chunk of chains stepped in lockstep: states ``xT`` (D, m), their ``f``, pixel and ``rgb / f``.
+
+    :meth:`propose` mutates every chain (Kelemen), evaluates all proposals in
+    one call of the target (one wavefront) and draws every accept/reject
+    coin; :meth:`move` applies the verdicts in place. The target is any
+    ``target(yT) -> (f, pixel, rgb / f)`` (the path tracer's
+    :class:`_PathTarget`, or an analytic density in the tests).
+    """
+
+    def __init__(self, xT, f, pix, rgbn):
+        self.xT, self.f, self.pix, self.rgbn = xT, f, pix, rgbn
+
+    def propose(self, target, sigma: float, p_large: float, rng) -> _Proposal:
+        yT, large = _mutate_soa(self.xT, sigma, p_large, rng)
+        fy, py, ry = target(yT)
+        a = np.minimum(1.0, fy / self.f)               # f > 0: chains only move to f > 0
+        return _Proposal(yT, fy, py, ry, large, a, rng.random(fy.shape[0]) < a)
+
+    def move(self, prop: _Proposal) -> None:
+        acc = prop.accept
+        np.copyto(self.xT, prop.xT, where=acc)
+        np.copyto(self.f, prop.f, where=acc)
+        np.copyto(self.pix, prop.pix, where=acc)
+        np.copyto(self.rgbn, prop.rgbn, where=acc)
+
+
 class _Splatter:
     """The film of one run, ``(3, n_pix)`` flattened: one ``np.bincount`` per step and splat kind."""
 
@@ -414,31 +455,26 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     try:
         for first in range(0, chains, chunk):
             sel = pick[first:first + chunk]
-            xT = np.ascontiguousarray(cand[sel].T)
-            fx, px, rx = fc[sel], pc[sel], np.ascontiguousarray(rc[:, sel])
+            chunk_chains = _Chains(np.ascontiguousarray(cand[sel].T), fc[sel], pc[sel],
+                                   np.ascontiguousarray(rc[:, sel]))
             m = sel.shape[0]
             sums = {name: np.zeros(m) for name in ("luminance", "film_x", "film_y")}
             squares = {name: np.zeros(m) for name in sums}
             for _ in range(n_steps):
-                yT, large = _mutate_soa(xT, sigma, p_large, rng)
-                fy, py, ry = target(yT)
-                f_large = fy[large]
+                prop = chunk_chains.propose(target, sigma, p_large, rng)
+                f_large = prop.f[prop.large]
                 b_sum, b_sq, b_n = b_sum + float(f_large.sum()), b_sq + float(f_large @ f_large), b_n + f_large.size
-                a = np.minimum(1.0, fy / fx)               # fx > 0: chains only move to f > 0
-                acc = rng.random(m) < a
                 if expected:
-                    film.add(px, rx, 1.0 - a)
-                    film.add(py, ry, a)
-                np.copyto(xT, yT, where=acc)
-                np.copyto(fx, fy, where=acc)
-                np.copyto(px, py, where=acc)
-                np.copyto(rx, ry, where=acc)
+                    film.add(chunk_chains.pix, chunk_chains.rgbn, 1.0 - prop.a)
+                    film.add(prop.pix, prop.rgbn, prop.a)
+                chunk_chains.move(prop)
                 if not expected:
-                    film.add(px, rx, 1.0)
-                for name, h in (("luminance", fx), ("film_x", xT[0]), ("film_y", xT[1])):
+                    film.add(chunk_chains.pix, chunk_chains.rgbn, 1.0)
+                for name, h in (("luminance", chunk_chains.f), ("film_x", chunk_chains.xT[0]),
+                                ("film_y", chunk_chains.xT[1])):
                     sums[name] += h
                     squares[name] += h * h
-                n_acc += int(acc.sum())
+                n_acc += int(prop.accept.sum())
                 done += m
             for name in sums:
                 moments.add_chunk(name, sums[name], squares[name], n_steps)
