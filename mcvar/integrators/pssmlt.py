@@ -186,19 +186,37 @@ def _path_function(scene: Scene, res, tracer: Tracer, max_depth, heuristic, rng,
     return evaluate
 
 
+def _normals(shape, scale: float, rng) -> np.ndarray:
+    """``scale`` times standard normals, float64 ``shape``, by Box-Muller from float32 uniforms
+    (each pair ``r cos t, r sin t`` is two independent normals; a quarter the time of
+    ``rng.standard_normal`` here, where the 32 numbers of 65 536 chains cost as much as
+    tracing their paths)."""
+    n = int(np.prod(shape))
+    half = (n + 1) // 2
+    u = rng.random((2, half), dtype=np.float32)
+    r = np.log1p(-u[0])                       # u < 1: finite
+    r *= -2.0
+    np.sqrt(r, out=r)
+    r *= np.float32(scale)
+    angle = u[1]
+    angle *= np.float32(2.0 * np.pi)
+    out = np.empty(2 * half)
+    np.multiply(r, np.cos(angle), out=out[:half])
+    np.multiply(r, np.sin(angle), out=out[half:])
+    return out[:n].reshape(shape)
+
+
 def _mutate_soa(xT, sigma: float, p_large: float, rng):
     """Kelemen's mutation of states stored as columns ``(D, n)`` (:func:`mcvar.mcmc._mutate`'s
-    rule): a wrapped Gaussian small step (float32 normals: a symmetric step either way), or with
-    probability ``p_large`` a uniform large step. Returns the proposals ``(D, n)`` and the large-step mask."""
-    step = rng.standard_normal(xT.shape, dtype=np.float32)
-    yT = np.multiply(step, sigma, dtype=np.float64)
-    del step
+    rule): a Gaussian small step of ``sigma`` wrapped on the torus, or with probability
+    ``p_large`` a uniform large step. Returns the proposals ``(D, n)`` and the large-step mask."""
+    yT = _normals(xT.shape, sigma, rng)
     yT += xT
     yT -= np.floor(yT)
     large = rng.random(xT.shape[1]) < p_large
-    k = int(large.sum())
-    if k:
-        yT[:, large] = rng.random((xT.shape[0], k))
+    idx = np.flatnonzero(large)
+    if idx.size:
+        yT[:, idx] = rng.random((xT.shape[0], idx.size))
     np.minimum(yT, np.nextafter(1.0, 0.0), out=yT)      # floor may round 1 - 1e-17 up to 1
     return yT, large
 
@@ -300,19 +318,67 @@ class _Moments:
             ok = means.size > 1 and var > 1e-300
             out[name] = float(n_steps * means.var(ddof=1) / var) if ok else float("nan")
         return out
+class _Run:
+    """What one PSSMLT run accumulates over its chunks of chains: the film, the diagnostics'
+    moments, the acceptance count, and the sums that estimate ``b`` (the mean of ``f`` over
+    iid uniform states: the bootstrap's ``f`` values, then every large step's proposal)."""
+
+    def __init__(self, n_pix: int, expected: bool, f_bootstrap):
+        self.film = _Splatter(n_pix)
+        self.moments = _Moments()
+        self.expected = expected
+        self.n_acc = self.done = 0
+        self._b = [float(f_bootstrap.sum()), float(f_bootstrap @ f_bootstrap), f_bootstrap.shape[0]]
+
+    def chunk(self, chains: "_Chains", n_steps: int, target, mutation, rng) -> None:
+        """Step one chunk of chains ``n_steps`` times in lockstep, splatting every step."""
+        sigma, p_large = mutation
+        film = self.film
+        m = chains.f.shape[0]
+        sums = {name: np.zeros(m) for name in ("luminance", "film_x", "film_y")}
+        squares = {name: np.zeros(m) for name in sums}
+        for _ in range(n_steps):
+            prop = chains.propose(target, sigma, p_large, rng)
+            f_large = prop.f[prop.large]
+            self._b[0] += float(f_large.sum())
+            self._b[1] += float(f_large @ f_large)
+            self._b[2] += f_large.size
+            if self.expected:
+                film.add(chains.pix, chains.rgbn, 1.0 - prop.a)
+                film.add(prop.pix, prop.rgbn, prop.a)
+            chains.move(prop)
+            if not self.expected:
+                film.add(chains.pix, chains.rgbn, 1.0)
+            for name, h in (("luminance", chains.f), ("film_x", chains.xT[0]), ("film_y", chains.xT[1])):
+                sums[name] += h
+                squares[name] += h * h
+            self.n_acc += int(prop.accept.sum())
+            self.done += m
+        for name in sums:
+            self.moments.add_chunk(name, sums[name], squares[name], n_steps)
+
+    def b(self):
+        """``(b, its standard error, the number of iid states)``."""
+        total, sq, n = self._b
+        b = total / n
+        return b, float(np.sqrt(max(sq / n - b * b, 0.0) / max(n - 1, 1))), n
+
+
 def _bootstrap(target, dim, chains, n_bootstrap, starts: bool, rng):
-    """One shared bootstrap: ``n_bootstrap`` uniform states, ``b`` from their mean, and the
+    """One shared bootstrap: ``n_bootstrap`` uniform states, ``b``'s first terms, and the
     chains' starting candidates (resampled ``∝ f``, or uniformly among the lit ones).
 
-    Returns ``(candidates (n_bootstrap, dim), f, pixel, rgb / f, pick (chains,))``.
+    Returns ``(candidates (dim, n_bootstrap), f, pixel, rgb / f, pick (chains,))``: the
+    candidates as columns, the layout of the chains' states (a chunk's starts are one gather).
     """
-    cand = rng.random((n_bootstrap, dim))
+    cand = rng.random((dim, n_bootstrap))
     fc = np.empty(n_bootstrap)
     pc = np.empty(n_bootstrap, dtype=np.intp)
     rc = np.empty((3, n_bootstrap))
     for a in range(0, n_bootstrap, BOOTSTRAP_CHUNK):
         z = slice(a, a + BOOTSTRAP_CHUNK)
-        fc[z], pc[z], rc[:, z] = target(np.ascontiguousarray(cand[z].T))
+        part = cand if n_bootstrap <= BOOTSTRAP_CHUNK else np.ascontiguousarray(cand[:, z])
+        fc[z], pc[z], rc[:, z] = target(part)
     total = fc.sum()
     if not total > 0.0:
         raise ValueError(f"none of the {n_bootstrap} bootstrap paths carries light: cannot start the "
@@ -445,45 +511,19 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     target = _PathTarget(scene, res, tracer, PathSettings(max_depth=opts.max_depth, heuristic=opts.heuristic),
                          rng)
     cand, fc, pc, rc, pick = _bootstrap(target, dim, chains, n_bootstrap, opts.bootstrap, rng)
-    # b: the mean of f over iid uniform states, the bootstrap's and every large step's proposal
-    b_sum, b_sq, b_n = float(fc.sum()), float(fc @ fc), n_bootstrap
-    film = _Splatter(n_pix)
-    moments = _Moments()
-    expected = opts.splat == "expected"
-    n_acc = done = 0
+    run = _Run(n_pix, opts.splat == "expected", fc)
     interrupted = False
     try:
         for first in range(0, chains, chunk):
             sel = pick[first:first + chunk]
-            chunk_chains = _Chains(np.ascontiguousarray(cand[sel].T), fc[sel], pc[sel],
-                                   np.ascontiguousarray(rc[:, sel]))
-            m = sel.shape[0]
-            sums = {name: np.zeros(m) for name in ("luminance", "film_x", "film_y")}
-            squares = {name: np.zeros(m) for name in sums}
-            for _ in range(n_steps):
-                prop = chunk_chains.propose(target, sigma, p_large, rng)
-                f_large = prop.f[prop.large]
-                b_sum, b_sq, b_n = b_sum + float(f_large.sum()), b_sq + float(f_large @ f_large), b_n + f_large.size
-                if expected:
-                    film.add(chunk_chains.pix, chunk_chains.rgbn, 1.0 - prop.a)
-                    film.add(prop.pix, prop.rgbn, prop.a)
-                chunk_chains.move(prop)
-                if not expected:
-                    film.add(chunk_chains.pix, chunk_chains.rgbn, 1.0)
-                for name, h in (("luminance", chunk_chains.f), ("film_x", chunk_chains.xT[0]),
-                                ("film_y", chunk_chains.xT[1])):
-                    sums[name] += h
-                    squares[name] += h * h
-                n_acc += int(prop.accept.sum())
-                done += m
-            for name in sums:
-                moments.add_chunk(name, sums[name], squares[name], n_steps)
+            run.chunk(_Chains(np.take(cand, sel, axis=1), fc[sel], pc[sel], np.take(rc, sel, axis=1)),
+                      n_steps, target, (sigma, p_large), rng)
     except KeyboardInterrupt:
-        if done == 0:
+        if run.done == 0:
             raise
         interrupted = True                 # keep the finished steps
-    b = b_sum / b_n
-    b_se = float(np.sqrt(max(b_sq / b_n - b * b, 0.0) / max(b_n - 1, 1)))
+    b, b_se, b_n = run.b()
+    moments, done, n_acc, film = run.moments, run.done, run.n_acc, run.film
     tau = moments.tau(n_steps)
     ess = {name: done / t if t > 0 else float("nan") for name, t in tau.items()}
     # image = b / spp * film  ->  sum = b * film, so that sum / spp is the image
