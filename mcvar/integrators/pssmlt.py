@@ -56,7 +56,7 @@ __all__ = ["CHAIN_CHUNK", "OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_fil
 #: (0.01, 0.3); ``chains``: 65 536 chains, one lockstep chunk
 #: (:data:`CHAIN_CHUNK`), so a step traces as many paths per bounce as a
 #: path-tracing batch (docs/mcmc.md, 'Many chains in lockstep', for the
-#: chain-count trade); ``n_bootstrap=None``: ``max(chains // 4, mutations // 4)``
+#: chain-count trade); ``n_bootstrap=None``: ``max(4 * chains, mutations // 4)``
 #: paths; ``state_depth``: path segments whose numbers are in the chain's state.
 OPTIONS = {"chains": 1 << 16, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None,
            "bootstrap": True, "splat": "expected", "state_depth": 6}
@@ -423,11 +423,13 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         Probability of a large step (a fresh uniform state).
     n_bootstrap : int or None
         Independent paths that estimate ``b`` and seed the chains, shared by
-        all chunks; None: ``max(chains // 4, N // 4, 1)`` for ``N``
-        mutations (pbrt uses 100 000 for images of ~10^8 mutations; here
-        images are small, so the bootstrap is a fraction of the work:
-        measured on cornell-door, a quarter of the mutations did better at
-        equal time than a sixteenth, docs/mcmc.md).
+        all chunks; None: ``max(4 * chains, N // 4)`` for ``N``
+        mutations (pbrt uses 100 000 for images of ~10^8 mutations). The
+        resampling gives about ``n_bootstrap / (1 + CV^2)`` distinct starts
+        (``CV``: the coefficient of variation of ``f``, about 24 on
+        cornell-door), so a bootstrap several times the chains pays: measured
+        at equal time on cornell-door, 4 chains' worth beat a quarter or a
+        sixteenth of the mutations (docs/mcmc.md).
         Fewer candidates than chains is allowed: chains that draw the same
         start part after their first steps.
     bootstrap : bool
@@ -503,7 +505,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     n_steps = -(-n_mut // chains)
     n_bootstrap = opts.n_bootstrap
     if n_bootstrap is None:
-        n_bootstrap = max(chains // 4, n_mut // 4, 1)
+        n_bootstrap = max(4 * chains, n_mut // 4)
     n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
     chunk = min(chains, CHAIN_CHUNK)
     _check_memory(dim, chains, n_bootstrap, opts.state_depth)
