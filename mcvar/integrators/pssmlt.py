@@ -6,10 +6,12 @@ al. [1]_ and pbrt's MLT integrator [2]_: the Markov chain of
 uniform numbers the path tracer turns into one camera path
 (:func:`mcvar.integrators.trace_camera_paths`), and its target is the
 luminance of that path's contribution. Every step splats the current and the
-proposed path onto the film (expected-value splatting); the bootstrap's ``b``
-(mean luminance of the image) sets the scale. Each batch of a render is an
-independent PSSMLT run (its own bootstrap and chains), so the film's
-variance comes from independent batches.
+proposed path onto the film (expected-value splatting); ``b``, the mean
+luminance of the image estimated from the run's independent uniform states
+(the bootstrap's and the large steps'), sets the scale. Up to
+:data:`CHAIN_CHUNK` chains step in lockstep: one wavefront of paths per step.
+Each batch of a render is an independent PSSMLT run (its own bootstrap and
+chains), so the film's variance comes from independent batches.
 
 State
 -----
