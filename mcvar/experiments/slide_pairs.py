@@ -26,7 +26,7 @@ import numpy as np
 from .._validation import check_count
 from . import compare_args as _args
 from .compare_args import _names, _seed_sequence, compare_methods
-from .compare_matrix import _region_slices, _region_text, measure_compare
+from .compare_matrix import _region_slices, measure_compare
 
 __all__ = ["CAUSTIC_REGION", "SPHERES_CAUSTIC_REGION", "METROPOLIS_METHODS", "PAIRS", "measure_pairs",
            "metropolis_methods", "forward_pinhole_hits", "StrategyGrid", "measure_strategy_grid",
