@@ -15,9 +15,9 @@ spp, or one progressive run for ``sppm``), and its image is compared with one sh
 
 MSE is the mean over pixels and channels of ``(image - reference)^2`` over
 
-* ``image``: every pixel that does not see the light directly
-  (:func:`mcvar.experiments.chart.emitter_pixels`: a radiance-1700 light over a sliver of a pixel is
-  pixel-sampling noise that no transport method changes);
+* ``image``: every pixel that does not see the light, directly or through the glass
+  (:func:`mcvar.integrators.photon.sees_emitters`: a radiance-1700 light over a sliver of a pixel is pixel-sampling noise that
+  no transport method changes, and the reference's own variance is largest there);
 * ``caustic``: the floor within two sphere radii of the sphere's contact point (pixel centres), where
   the focused light lands.
 
@@ -33,8 +33,8 @@ import time
 
 import numpy as np
 
-from mcvar.experiments.chart import emitter_pixels
 from mcvar.experiments.compare import equal_time_render, scene_reference
+from mcvar.integrators.photon import sees_emitters
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
 
@@ -79,7 +79,7 @@ def measure(methods, *, res: int, seconds: float, seeds: int, reference_spp: int
     sc = load_scene(SCENE)
     ref = reference if reference is not None else scene_reference(
         SCENE, res, method="bdpt", spp=reference_spp, seed=seed, cache_dir=cache, progress=True)
-    keep = ~emitter_pixels(SCENE, res)
+    keep = ~sees_emitters(sc, res)
     caustic = caustic_pixels(sc, res) & keep
     rows = []
     for label, name, options in methods:
