@@ -126,6 +126,15 @@ def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer
     emission, so ``tau`` sums ``i`` independent estimates). Photons of every
     depth are gathered (no separate direct lighting), so a pixel's direct
     light is blurred by its radius like its indirect light.
+
+    Per pass: the camera rays follow mirrors and glass to their visible
+    points (:func:`~mcvar.integrators.photon.visible_points`), the photons
+    are traced :data:`~mcvar.integrators.photon.PHOTONS_PER_BATCH` at a time
+    and stored only at non-delta hits, and each batch's (visible point,
+    photon) pairs within the point's radius come from one k-d tree
+    (:func:`~mcvar.integrators.photon.pairs_within`), in chunks of bounded
+    size. Measured on ``cornell-caustic`` (docs/photon.md): photon tracing
+    is most of a pass; the more photons per pass, the cheaper each one.
     """
     opts = settings_with(SPPMSettings, settings, options, "sppm")
     res, radius, max_depth = opts.res, opts.radius, opts.max_depth
