@@ -465,7 +465,6 @@ def sees_emitters(scene: Scene, res, *, sub: int = 16, refine: int = 256) -> np.
     else:
         w, h = check_count(res[0], "res[0]"), check_count(res[1], "res[1]")
     tracer = Tracer(scene)
-
     delta = _is_delta(scene)
     rng = np.random.default_rng(0)
     lit, glassy = np.zeros(w * h, bool), np.zeros(w * h, bool)
@@ -487,8 +486,7 @@ def sees_emitters(scene: Scene, res, *, sub: int = 16, refine: int = 256) -> np.
 
     probe(np.arange(w * h), sub)
     probe(np.flatnonzero(glassy), refine)
-    out = lit
-    return ndimage.binary_dilation(out.reshape(h, w), iterations=1)
+    return ndimage.binary_dilation(lit.reshape(h, w), iterations=1)
 
 
 def _flatten(lists, counts):
