@@ -117,7 +117,8 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--methods", default="path,sppm,photon",
-                    help="comma-free specs separated by ';' or ',' between names, e.g. 'path;sppm:photons=65536'")
+                    help="method specs separated by ',' (names only) or ';' (when a spec has options), "
+                         "e.g. 'path;sppm:photons=65536,radius=20'")
     ap.add_argument("--reference-spp", type=int, default=4096)
     ap.add_argument("--cache", default="out/.cache")
     ap.add_argument("--seed", type=int, default=0)
