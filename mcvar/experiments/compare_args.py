@@ -28,7 +28,7 @@ DEFAULT_SCENES = ("cornell", "cornell-point", "cornell-door", "cornell-caustic",
 #: Options of the methods in the comparison (low accuracy per round, so that rounds fit in seconds).
 COMPARE_OPTIONS = {
     "photon": {"photons": 16384},
-    "sppm": {"photons": 8192},
+    "sppm": {"photons": 16384},
     "radiosity": {"patch_size": 140.0, "rays_per_side": 32, "emitter_rays": 16384},
 }
 
