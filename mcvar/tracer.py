@@ -160,8 +160,7 @@ class Tracer:
         self.accel = "bvh" if use_bvh else "groups"
         if use_bvh:
             # no per-group blocks and no shadow table (its size grows with T^2)
-            self._bvh = _bvh.build_bvh(tri)
-            self._maps = _bvh.triangle_maps(tri, self.dtype)
+            self._bvh = _bvh.build_bvh(tri, dtype=self.dtype)
             self._cand = None
             return
         groups = scene.prim_group[:n_tri]
@@ -361,7 +360,7 @@ class Tracer:
         n = o.shape[1]
         if self.accel == "bvh":
             tm = np.full(n, np.inf) if tmax is None else tmax
-            return _bvh.closest(self._bvh, self._maps, o, d, tm, self.epsilon)
+            return _bvh.closest(self._bvh, o, d, tm, self.epsilon)
         o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.full(n, np.inf, dtype=self.dtype)
         p_out = np.full(n, -1, dtype=np.int64)
@@ -406,7 +405,7 @@ class Tracer:
     def _any_triangles(self, o, d, tmax, keys):
         n = o.shape[1]
         if self.accel == "bvh":
-            return _bvh.occluded(self._bvh, self._maps, o, d, tmax, self.epsilon)
+            return _bvh.occluded(self._bvh, o, d, tmax, self.epsilon)
         occ = np.zeros(n, dtype=bool)
         blocks, lo, hi = self._shadow_blocks(keys)
         if not blocks:

@@ -77,12 +77,11 @@ def test_any_hit_equals_closest_hit_before_tmax():
     o = rng.random((n, 3)) * 1.4 - 0.2
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    b = B.build_bvh(tri)
-    maps = B.triangle_maps(tri, np.float64)
-    t, prim = B.closest(b, maps, o.T, d.T, np.full(n, np.inf), 1e-6)
+    b = B.build_bvh(tri, dtype="float64")
+    t, prim = B.closest(b, o.T, d.T, np.full(n, np.inf), 1e-6)
     assert 0.1 < np.mean(prim >= 0) < 0.9
     tmax = rng.random(n) * 1.5
-    occ = B.occluded(b, maps, o.T, d.T, tmax, 1e-6)
+    occ = B.occluded(b, o.T, d.T, tmax, 1e-6)
     np.testing.assert_array_equal(occ, t < tmax)
     # and both equal the oracle of every ray against every triangle
     v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
