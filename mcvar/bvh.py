@@ -169,6 +169,8 @@ def build_bvh(triangles, *, leaf_size: int = LEAF_SIZE, bins: int = SAH_BINS, wi
     tri = np.asarray(triangles, dtype=np.float64)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3) or tri.shape[0] == 0:
         raise ValueError(f"triangles must have shape (T, 3, 3) with T >= 1; got {tri.shape}")
+    if not np.all(np.isfinite(tri)):
+        raise ValueError("triangles must be finite (no NaN or Inf coordinates)")
     leaf_size = check_count(leaf_size, "leaf_size")
     bins = check_count(bins, "bins")
     if bins < 2:
