@@ -33,7 +33,12 @@ themselves (repeated ``WIDTH`` times once per chunk) are all stored as
 blocks of one shape. Empty slots hold NaN boxes and NaN triangles, which
 fail every comparison.
 
-Memory: nodes and leaves ``O(T)`` (about 200 bytes a triangle); pairs bounded
+Widths 2, 4, 8 and 16 are supported; 4 (leaves of 4 triangles) was measured
+fastest on the subdivided Cornell box from 122 to 94,000 triangles. Float32
+distances agree with float64 to ``2e-4`` relative plus the rounding of the
+ray origin (about one ulp of the scene's size over ``|cos theta|``).
+
+Memory: nodes and leaves ``O(T)`` (about 125 bytes a triangle); pairs bounded
 by the chunk of rays.
 """
 from __future__ import annotations

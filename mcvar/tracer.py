@@ -84,8 +84,9 @@ class Tracer:
         hit its bounding box (default True).
     accel : {'auto', 'bvh', 'groups'}
         ``'groups'``: brute force over triangle groups (the Cornell box's
-        path); ``'bvh'``: a binned-SAH bounding volume hierarchy traversed as
-        a wavefront of (ray, node) pairs (:mod:`mcvar.bvh`), whose cost grows
+        path); ``'bvh'``: a binned-SAH bounding volume hierarchy, collapsed
+        to 4-wide nodes and traversed as a wavefront of (ray, node) pairs
+        (:mod:`mcvar.bvh`), whose cost grows
         with the logarithm of the triangle count and whose memory grows
         linearly; ``'auto'`` (default): the BVH above
         :data:`BVH_MIN_TRIANGLES` triangles.
