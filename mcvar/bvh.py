@@ -383,18 +383,18 @@ def _linear(m, r, i):
     return out
 
 
-def _slab(box, r, best):
-    """Slab test of ``(P, width)`` blocks: boxes ``box`` (6, P, w), rays ``r``
-    (6, P, w) as ``(1/d, o)``, and the closest hit so far ``best`` (P, w).
+def _slab(box, r):
+    """Slab test of ``(P, width)`` blocks: boxes ``box`` (6, P, w) and rays
+    ``r`` (7, P, w) as ``(1/d, best, o)``, ``best`` the closest hit so far.
 
     Returns the hit mask and the entry distances ``max(t_near, 0)``. A box is
     hit where ``max(t_near, 0) <= min(t_far, best)``; NaN (an empty slot)
     fails the comparison."""
     tn = tf = None
     for a in range(3):
-        t0 = box[a] - r[3 + a]
+        t0 = box[a] - r[4 + a]
         t0 *= r[a]
-        t1 = box[3 + a] - r[3 + a]
+        t1 = box[3 + a] - r[4 + a]
         t1 *= r[a]
         lo = np.minimum(t0, t1)
         np.maximum(t0, t1, out=t1)
@@ -404,15 +404,16 @@ def _slab(box, r, best):
             np.maximum(tn, lo, out=tn)
             np.minimum(tf, t1, out=tf)
     np.maximum(tn, 0, out=tn)
-    np.minimum(tf, best, out=tf)
+    np.minimum(tf, r[3], out=tf)
     return tn <= tf, tn
 
 
-def _leaf_t(maps, r, eps, best):
+def _leaf_t(maps, r, eps):
     """Distances ``(Q, w)`` of (ray, leaf) pairs to the leaf's slots and the hit mask.
 
-    ``maps`` (12, Q, w) from :attr:`BVH.leaf_maps`; ``r`` (6, Q, w) as ``(o, d)``."""
-    o, d = r[:3], r[3:]
+    ``maps`` (12, Q, w) from :attr:`BVH.leaf_maps`; ``r`` (7, Q, w) as
+    ``(best, o, d)``, ``best`` the closest hit so far."""
+    best, o, d = r[0], r[1:4], r[4:7]
     t = _affine(maps, o, 8)
     t /= _linear(maps, d, 8)
     np.negative(t, out=t)
@@ -432,48 +433,60 @@ def _leaf_t(maps, r, eps, best):
 
 
 class _Chunk:
-    """One chunk of rays in traversal: the rays repeated over the slots, the
-    closest hit so far (also repeated) and the answer being built."""
+    """One chunk of rays in traversal: the rays and their closest hit so far,
+    repeated over the slots, and the answer being built.
+
+    ``rays`` (10, n, w) holds rows ``1/d, best, o, d``: the slab test gathers
+    rows 0-6 and the triangle test rows 3-9 of a pair's ray in one ``take``
+    each."""
 
     def __init__(self, bvh: BVH, o, d, tmax, eps, any_hit):
         w, n, dt = bvh.width, o.shape[1], bvh.dtype
         self.bvh, self.w, self.eps, self.any_hit = bvh, w, dt.type(eps), any_hit
-        rays = np.empty((9, n, w), dt)           # (1/d, o, d), each repeated over the w slots
+        self.shift = w.bit_length() - 1
+        rays = np.empty((10, n, w), dt)
         with np.errstate(divide="ignore", invalid="ignore"):
             safe = np.where(np.abs(d) < TINY, np.copysign(np.asarray(TINY, dt), d), d)
             rays[0:3] = (1.0 / safe)[:, :, None]
-        rays[3:6] = o[:, :, None]
-        rays[6:9] = d[:, :, None]
-        self.box_rays, self.leaf_rays = rays[0:6], rays[3:9]
         self.best = np.array(tmax, dtype=dt, copy=True)
-        self.best_w = np.repeat(self.best[:, None], w, axis=1)
+        rays[3] = self.best[:, None]
+        rays[4:7] = o[:, :, None]
+        rays[7:10] = d[:, :, None]
+        self.rays = rays
+        self.box_rays, self.leaf_rays = rays[0:7], rays[3:10]
         self.prim = np.full(n, -1, np.int64)
         self.occ = np.zeros(n, bool)
+        self.fresh = False                      # any ray occluded since the last filter
         self.wchild, self.lprim = bvh.wchild.ravel(), bvh.leaf_prim.ravel()
 
     def boxes(self, ray, node):
         """Hit mask and entry distances (P, w) of the slots of (ray, node) pairs."""
-        return _slab(np.take(self.bvh.wbox, node, axis=1), np.take(self.box_rays, ray, axis=1),
-                     np.take(self.best_w, ray, axis=0))
+        return _slab(np.take(self.bvh.wbox, node, axis=1), np.take(self.box_rays, ray, axis=1))
+
+    def children(self, ray, node):
+        """The (ray, child code) pairs of the slots of (ray, node) that are hit."""
+        ok, _ = self.boxes(ray, node)
+        f = np.flatnonzero(ok)
+        pair = f >> self.shift
+        return np.take(ray, pair), np.take(self.wchild, (np.take(node, pair) << self.shift) | (f & (self.w - 1)))
 
     def leaves(self, lr, lf):
         """Intersect (ray, leaf) pairs; closest hits or occlusion recorded."""
-        w = self.w
-        t, hit = _leaf_t(np.take(self.bvh.leaf_maps, lf, axis=1), np.take(self.leaf_rays, lr, axis=1),
-                         self.eps, np.take(self.best_w, lr, axis=0))
+        t, hit = _leaf_t(np.take(self.bvh.leaf_maps, lf, axis=1), np.take(self.leaf_rays, lr, axis=1), self.eps)
         g = np.flatnonzero(hit)
         if not g.size:
             return
-        q = g // w
+        q = g >> self.shift
         hr = np.take(lr, q)
         if self.any_hit:
             self.occ[hr] = True
+            self.fresh = True
             return
         tt = np.take(t, g)
         np.minimum.at(self.best, hr, tt)
         win = tt == np.take(self.best, hr)
-        self.prim[hr[win]] = np.take(self.lprim, np.take(lf, q[win]) * w + (g[win] - q[win] * w))
-        self.best_w[hr] = np.take(self.best, hr)[:, None]
+        self.prim[hr[win]] = np.take(self.lprim, (np.take(lf, q[win]) << self.shift) | (g[win] & (self.w - 1)))
+        self.rays[3, hr] = np.take(self.best, hr)[:, None]
 
     def split(self, ray, code):
         """Test the leaves among (ray, child code) pairs; return the inner pairs."""
@@ -487,16 +500,13 @@ class _Chunk:
 
 def _any_hit(c: _Chunk, n):
     """Breadth first: every hit slot becomes a pair of the next round; occluded rays drop out."""
-    w = c.w
     ray, node = np.arange(n), np.zeros(n, np.int64)
     while ray.size:
-        ok, _ = c.boxes(ray, node)
-        f = np.flatnonzero(ok)
-        pair = f // w
-        ray, node = c.split(np.take(ray, pair), np.take(c.wchild, np.take(node, pair) * w + (f - pair * w)))
-        if ray.size:
+        ray, node = c.split(*c.children(ray, node))
+        if c.fresh and ray.size:
             live = ~np.take(c.occ, ray)
             ray, node = ray[live], node[live]
+            c.fresh = False
     return c.occ
 
 
@@ -507,13 +517,9 @@ def _closest(c: _Chunk, n):
     into its nearest slot and deferring the others until the first hits were
     known, opened 11% fewer boxes on the subdivided box's path rays but took
     twice the time: twice the rounds, and the per-pair keys.)"""
-    w = c.w
     ray, node = np.arange(n), np.zeros(n, np.int64)
     while ray.size:
-        ok, _ = c.boxes(ray, node)
-        f = np.flatnonzero(ok)
-        pair = f // w
-        ray, node = c.split(np.take(ray, pair), np.take(c.wchild, np.take(node, pair) * w + (f - pair * w)))
+        ray, node = c.split(*c.children(ray, node))
     best, prim = c.best, c.prim
     best[prim < 0] = np.inf
     return best.astype(np.float64), prim
