@@ -278,20 +278,22 @@ def build_bvh(triangles, *, leaf_size: int = LEAF_SIZE, bins: int = SAH_BINS, wi
     hi = np.ascontiguousarray(hi + pad, np.float32)
     child = np.concatenate(child)
     start, count = np.concatenate(starts), np.concatenate(counts)
-    wide = _collapse(lo, hi, child, start, count, order, width, np.dtype(dtype), tri)
-    return BVH(lo=lo, hi=hi, child=child, start=start, count=count, order=order, depth=depth, width=width, **wide)
+    wbox, wchild = _collapse(lo, hi, child, width, np.dtype(dtype))
+    leaf_maps, leaf_prim = _leaves(child, start, count, order, width, triangle_maps(tri, dtype))
+    return BVH(lo=lo, hi=hi, child=child, start=start, count=count, order=order, depth=depth, width=width,
+               wbox=wbox, wchild=wchild, leaf_maps=leaf_maps, leaf_prim=leaf_prim)
 
 
 
 
-def _collapse(lo, hi, child, start, count, order, width, dtype, tri):
+def _collapse(lo, hi, child, width, dtype):
     """The wide tree of a binary one, level by level in array operations.
 
     A wide node starts as its binary node and, while it has fewer than
     ``width`` slots, opens its inner slot of largest surface area into that
     node's two children (the greedy collapse of Wald et al. 2008, 'Getting
-    rid of packets'; every wide node of a level at once). Returns the wide
-    arrays of :class:`BVH`.
+    rid of packets'; every wide node of a level at once). Returns
+    :attr:`BVH.wbox` and :attr:`BVH.wchild`.
     """
     leaf_of = np.full(child.size, -1, np.int64)
     is_leaf = child < 0
@@ -332,17 +334,21 @@ def _collapse(lo, hi, child, start, count, order, width, dtype, tri):
         children.append(code)
         n_wide += nxt.size
         owners = nxt
-    # leaves: their triangles' maps side by side, NaN in the empty slots
-    leaves = np.flatnonzero(is_leaf)
+    return np.ascontiguousarray(np.concatenate(boxes, axis=1)), np.ascontiguousarray(np.concatenate(children))
+
+
+def _leaves(child, start, count, order, width, maps):
+    """:attr:`BVH.leaf_maps` and :attr:`BVH.leaf_prim`: every leaf's triangle maps
+    (``maps`` (12, T)) side by side in ``width`` slots, NaN in the empty ones,
+    leaves numbered in node order (as :func:`_collapse` numbers them)."""
+    leaves = np.flatnonzero(child < 0)
     pos, seg = _ranges(start[leaves], count[leaves])
     slot = np.arange(pos.size) - (np.cumsum(count[leaves]) - count[leaves])[seg]
     prim = np.full((leaves.size, width), -1, np.int64)
     prim[seg, slot] = order[pos]
-    maps = triangle_maps(tri, dtype)
-    leaf_maps = np.full((12, leaves.size, width), np.nan, dtype)
+    leaf_maps = np.full((12, leaves.size, width), np.nan, maps.dtype)
     leaf_maps[:, seg, slot] = maps[:, order[pos]]
-    return dict(wbox=np.ascontiguousarray(np.concatenate(boxes, axis=1)),
-                wchild=np.ascontiguousarray(np.concatenate(children)), leaf_maps=leaf_maps, leaf_prim=prim)
+    return leaf_maps, prim
 
 
 def triangle_maps(triangles, dtype=np.float32) -> np.ndarray:
