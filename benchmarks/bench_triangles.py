@@ -1,81 +1,168 @@
 """How the cost of a path grows with the number of triangles (prints figures; not a test).
 
-Run: ``python benchmarks/bench_triangles.py [--quick]``
+Run: ``python benchmarks/bench_triangles.py [--quick] [--rounds R] [--trees OLD NEW]``
 
 The Cornell box with every non-emitting triangle cut into ``k^2`` pieces
 (:func:`mcvar.tessellate.subdivide`: the same surfaces, so the same image)
 from 32 to ~94,000 triangles, rendered with ``path`` (sampler sobol, 1
-worker) with the tracer's automatic choice (brute force over triangle groups
-up to :data:`mcvar.tracer.BVH_MIN_TRIANGLES`, the BVH above) and, where it
-is affordable, with brute force forced (``accel='groups'``). Prints paths per
-second (best of the repeats, after a warm-up render that also builds the
-tracer), the BVH build time and size, the ratio to the coarse box and the
-log-log slope of seconds per path against triangles. Interleaved: every
-round renders every case once, so a change of the machine's load touches
-all cases alike.
+worker), with brute force over triangle groups (``accel='groups'``) where it
+is affordable and with the BVH (``accel='bvh'``) from 122 triangles on.
+Prints paths per second (best of the rounds, after a warm-up render), both
+by the wall clock (``Render.seconds``) and by the process's CPU time over
+the same span (which a busy machine disturbs less), the BVH build time and size, the ratio to the
+coarse box and the log-log slope of seconds per path against triangles.
+Each scene's tracer is built once and reused, so the times exclude the
+build (printed apart).
+
+Interleaved: every round renders every case once, so a change of the
+machine's load touches all cases alike. With ``--trees OLD NEW`` (two
+checkouts of mcvar, e.g. ``git worktree add ../base <commit>``) every round
+runs the cases once in a fresh process for each tree in turn, and the table
+puts the two side by side.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
 import time
 
 import numpy as np
 
-from mcvar.integrators import render
-from mcvar.scene import load_scene
-from mcvar.tessellate import subdivide
-from mcvar.tracer import Tracer
-
-KS = (1, 2, 4, 8, 16, 32, 56)
-BRUTE_UP_TO = 2000      # brute force costs O(T) per ray: 482 triangles already take 25x the box's time
+KS = (1, 2, 3, 4, 8, 16, 32, 56)
+BRUTE_UP_TO = 2000      # brute force costs O(T) per ray: 1,922 triangles already take 30x the box's time
+BVH_FROM = 100
 
 
-def main(quick: bool = False):
-    res, spp, rounds = (32, 16, 2) if quick else (64, 32, 3)
-    print(f"load average before: {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} CPUs; "
-          f"{res}x{res}, {spp} spp, best of {rounds} interleaved rounds")
+def _cases():
+    """``(k, accel)`` of every case: brute force up to BRUTE_UP_TO triangles, the BVH from BVH_FROM."""
+    from mcvar.scene import load_scene
+    from mcvar.tessellate import subdivide
+
     coarse = load_scene("cornell")
-    cases = []
+    out = []
     for k in KS:
+        n = subdivide(coarse, k).n_triangles
+        if n <= BRUTE_UP_TO:
+            out.append((k, "groups"))
+        if n >= BVH_FROM:
+            out.append((k, "bvh"))
+    return out
+
+
+def one_round(res: int, spp: int) -> dict:
+    """Render every case once in this process: ``{case: {...}}`` (JSON-able)."""
+    import mcvar.integrators.driver as driver
+    import mcvar.tracer as T
+    from mcvar.integrators import render
+    from mcvar.scene import load_scene
+    from mcvar.tessellate import subdivide
+
+    coarse = load_scene("cornell")
+    built = {}
+    real_tracer = driver.Tracer
+
+    def cached(scene, **kw):           # the render's tracer, built once per case (timed apart)
+        return built[scene.name]
+
+    # CPU time over the span of the render's own clock (Render.seconds runs from
+    # _Render.start to _Render.result; the setup before it is not the tracer's cost)
+    cpu_marks = {}
+    real_start, real_result = driver._Render.start, driver._Render.result
+
+    def start(self, *, total):
+        real_start(self, total=total)
+        cpu_marks["start"] = time.process_time()
+
+    def result(self, *args, **fields):
+        cpu_marks["end"] = time.process_time()
+        return real_result(self, *args, **fields)
+
+    driver._Render.start, driver._Render.result = start, result
+
+    out = {}
+    for k, accel in _cases():
         scene = subdivide(coarse, k)
-        t0 = time.perf_counter()
-        tr = Tracer(scene)
-        build = time.perf_counter() - t0
-        cases.append((scene, "auto", tr.accel, build, tr))
-        if scene.n_triangles <= BRUTE_UP_TO and tr.accel != "groups":
-            cases.append((scene, "groups", "groups", 0.0, None))
-    best = {i: np.inf for i in range(len(cases))}
-    means = {}
-    for _ in range(rounds):
-        for i, (scene, accel, _, _, _) in enumerate(cases):
-            import mcvar.tracer as T
-            keep = T.BVH_MIN_TRIANGLES
-            if accel == "groups":
-                T.BVH_MIN_TRIANGLES = 10 ** 9
-            try:
-                render(scene, integrator="path", spp=1, res=8, sampler="sobol", rng=0)
-                r = render(scene, integrator="path", spp=spp, res=res, sampler="sobol", rng=1)
-            finally:
-                T.BVH_MIN_TRIANGLES = keep
-            best[i] = min(best[i], r.seconds)
-            means[i] = float(r.image.mean())
-    base = best[0]
-    print(f"{'triangles':>9} {'tracer':>7} {'build s':>8} {'M paths/s':>10} {'vs box':>7} {'image mean':>11}")
+        keep = T.BVH_MIN_TRIANGLES
+        # the tracer of this tree for the accel asked (older trees have no accel argument)
+        T.BVH_MIN_TRIANGLES = 0 if accel == "bvh" else 10 ** 9
+        try:
+            t0 = time.perf_counter()
+            tr = real_tracer(scene)
+            build = time.perf_counter() - t0
+        finally:
+            T.BVH_MIN_TRIANGLES = keep
+        used = getattr(tr, "accel", accel)
+        size = tr._bvh.nbytes if used == "bvh" else 0
+        built[scene.name] = tr
+        driver.Tracer = cached
+        try:
+            render(scene, integrator="path", spp=1, res=8, sampler="sobol", rng=0)
+            r = render(scene, integrator="path", spp=spp, res=res, sampler="sobol", rng=1)
+            cpu = cpu_marks["end"] - cpu_marks["start"]
+        finally:
+            driver.Tracer = real_tracer
+        out[f"{k}:{accel}"] = dict(triangles=scene.n_triangles, tracer=used, build=build, bytes=size,
+                                   wall=r.seconds, cpu=cpu, mean=float(r.image.mean()))
+    return out
+
+
+def _table(results: dict, res: int, spp: int, label: str):
+    """Print one tree's table from ``{case: [round results]}``."""
+    paths = res * res * spp
+    rows = {c: dict(v[0], wall=min(x["wall"] for x in v), cpu=min(x["cpu"] for x in v),
+                    build=min(x["build"] for x in v)) for c, v in results.items()}
+    base = rows["1:groups"]
+    print(f"\n{label}")
+    print(f"{'triangles':>9} {'tracer':>7} {'build s':>8} {'B/tri':>6} {'M paths/s':>10} {'vs box':>7} "
+          f"{'cpu M p/s':>10} {'vs box':>7} {'image mean':>11}")
     xs, ys = [], []
-    for i, (scene, accel, used, build, _) in enumerate(cases):
-        rate = res * res * spp / best[i] / 1e6
-        print(f"{scene.n_triangles:>9} {used:>7} {build:>8.3f} {rate:>10.3f} {base / best[i]:>7.2f} {means[i]:>11.5f}")
-        if used == "bvh":
-            xs.append(np.log(scene.n_triangles))
-            ys.append(np.log(best[i]))
+    for c, r in rows.items():
+        bpt = f"{r['bytes'] / r['triangles']:.0f}" if r["bytes"] else ""
+        build = f"{r['build']:.3f}" if r["tracer"] == "bvh" else ""
+        print(f"{r['triangles']:>9} {r['tracer']:>7} {build:>8} {bpt:>6} {paths / r['wall'] / 1e6:>10.3f} "
+              f"{base['wall'] / r['wall']:>7.2f} {paths / r['cpu'] / 1e6:>10.3f} {base['cpu'] / r['cpu']:>7.2f} "
+              f"{r['mean']:>11.5f}")
+        if r["tracer"] == "bvh":
+            xs.append(np.log(r["triangles"]))
+            ys.append(np.log(r["cpu"]))
     if len(xs) > 1:
-        slope = np.polyfit(xs, ys, 1)[0]
-        print(f"log-log slope of seconds per path against triangles (BVH cases): {slope:.3f}")
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
+        print(f"log-log slope of CPU seconds per path against triangles (BVH cases): {np.polyfit(xs, ys, 1)[0]:.3f}")
+
+
+def main(quick: bool = False, rounds: int | None = None, trees=None, child: bool = False):
+    res, spp = (32, 16) if quick else (64, 32)
+    rounds = rounds or (2 if quick else 3)
+    if child:
+        print(json.dumps(one_round(res, spp)))
+        return
+    print(f"load average before: {os.getloadavg()} (1, 5, 15 min) on {os.cpu_count()} CPUs; "
+          f"{res}x{res}, {spp} spp, best of {rounds} interleaved rounds")
+    trees = trees or [None]
+    results = {t: {} for t in trees}
+    for _ in range(rounds):
+        for t in trees:
+            if t is None:
+                got = one_round(res, spp)
+            else:
+                env = dict(os.environ, PYTHONPATH=os.path.abspath(t), OMP_NUM_THREADS="1")
+                cmd = [sys.executable, os.path.abspath(__file__), "--child"] + (["--quick"] if quick else [])
+                got = json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True,
+                                                text=True).stdout.strip().splitlines()[-1])
+            for c, v in got.items():
+                results[t].setdefault(c, []).append(v)
+        print(f"  round done, load {os.getloadavg()[0]:.2f}", flush=True)
+    for t in trees:
+        _table(results[t], res, spp, "this tree" if t is None else t)
+    print(f"load average after: {os.getloadavg()}")
 
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--rounds", type=int, default=None)
+    p.add_argument("--trees", nargs=2, default=None, metavar=("OLD", "NEW"))
+    p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     main(**vars(p.parse_args()))

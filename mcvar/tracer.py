@@ -27,11 +27,11 @@ from ._validation import as_array, check_bool, check_count, check_choice
 __all__ = ["Hit", "Tracer", "BVH_MIN_TRIANGLES", "ACCELERATIONS"]
 
 #: ``accel='auto'`` uses the BVH (:mod:`mcvar.bvh`) for scenes with more triangles
-#: than this, brute force over triangle groups below. Measured on a quiet machine
-#: (``benchmarks/bench_triangles.py``, the subdivided Cornell box, path 64x64 at 32 spp):
-#: brute force ahead at 122 triangles (0.97 against 0.29 M paths/s) and 482 (0.44 against
-#: 0.29), the BVH at 1,922 (0.29 against 0.05).
-BVH_MIN_TRIANGLES = 1024
+#: than this, brute force over triangle groups below. Measured (``benchmarks/bench_triangles.py``,
+#: the subdivided Cornell box, path 64x64 at 32 spp, CPU time, load 6-9): brute force ahead at
+#: 272 triangles (0.57 against 0.48 M paths/s), the 4-wide BVH at 482 (0.45 against 0.37) and
+#: 8x ahead at 1,922 (0.44 against 0.05).
+BVH_MIN_TRIANGLES = 400
 #: Intersection strategies of :class:`Tracer`.
 ACCELERATIONS = ("auto", "bvh", "groups")
 
@@ -84,8 +84,9 @@ class Tracer:
         hit its bounding box (default True).
     accel : {'auto', 'bvh', 'groups'}
         ``'groups'``: brute force over triangle groups (the Cornell box's
-        path); ``'bvh'``: a binned-SAH bounding volume hierarchy traversed as
-        a wavefront of (ray, node) pairs (:mod:`mcvar.bvh`), whose cost grows
+        path); ``'bvh'``: a binned-SAH bounding volume hierarchy, collapsed
+        to 4-wide nodes and traversed as a wavefront of (ray, node) pairs
+        (:mod:`mcvar.bvh`), whose cost grows
         with the logarithm of the triangle count and whose memory grows
         linearly; ``'auto'`` (default): the BVH above
         :data:`BVH_MIN_TRIANGLES` triangles.
@@ -160,8 +161,7 @@ class Tracer:
         self.accel = "bvh" if use_bvh else "groups"
         if use_bvh:
             # no per-group blocks and no shadow table (its size grows with T^2)
-            self._bvh = _bvh.build_bvh(tri)
-            self._maps = _bvh.triangle_maps(tri, self.dtype)
+            self._bvh = _bvh.build_bvh(tri, dtype=self.dtype)
             self._cand = None
             return
         groups = scene.prim_group[:n_tri]
@@ -361,7 +361,7 @@ class Tracer:
         n = o.shape[1]
         if self.accel == "bvh":
             tm = np.full(n, np.inf) if tmax is None else tmax
-            return _bvh.closest(self._bvh, self._maps, o, d, tm, self.epsilon)
+            return _bvh.closest(self._bvh, o, d, tm, self.epsilon)
         o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.full(n, np.inf, dtype=self.dtype)
         p_out = np.full(n, -1, dtype=np.int64)
@@ -406,7 +406,7 @@ class Tracer:
     def _any_triangles(self, o, d, tmax, keys):
         n = o.shape[1]
         if self.accel == "bvh":
-            return _bvh.occluded(self._bvh, self._maps, o, d, tmax, self.epsilon)
+            return _bvh.occluded(self._bvh, o, d, tmax, self.epsilon)
         occ = np.zeros(n, dtype=bool)
         blocks, lo, hi = self._shadow_blocks(keys)
         if not blocks:
