@@ -431,24 +431,43 @@ class Tracer:
         return occ
 
     def _spheres(self, o, d, tmax):
-        """Closest sphere hits (float64), SoA rays (3, n)."""
+        """Closest sphere hits (float64), SoA rays (3, n).
+
+        One sphere at a time, written out (no ``(S, 3, n)`` temporaries): the
+        discriminant on every ray, the roots only on the rays whose line
+        meets the sphere; a nearer sphere replaces a hit only where it is
+        strictly nearer (ties: the lower index, as ``argmin``).
+        """
         n = o.shape[1]
-        if self.n_spheres == 0:
-            return np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
-        oc = o[None, :, :] - self._sph_c[:, :, None]          # (S, 3, n)
-        b = np.einsum("skn,kn->sn", oc, d)
-        c = np.einsum("skn,skn->sn", oc, oc) - self._sph_r2[:, None]
-        disc = b * b - c
-        root = np.sqrt(np.maximum(disc, 0.0))
-        t0 = -b - root
-        t1 = -b + root
+        best = np.full(n, np.inf)
+        prim = np.full(n, -1, dtype=np.int64)
         eps = self.epsilon
-        t = np.where(t0 > eps, t0, t1)
-        ok = (disc >= 0) & (t > eps) & (t < tmax[None, :])
-        t = np.where(ok, t, np.inf)
-        j = np.argmin(t, axis=0)
-        best = np.take_along_axis(t, j[None], axis=0)[0]
-        return best, np.where(np.isfinite(best), self.n_triangles + j, -1)
+        tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,))
+        for j in range(self.n_spheres):
+            cx, cy, cz = (float(v) for v in self._sph_c[j])
+            ox, oy, oz = o[0] - cx, o[1] - cy, o[2] - cz
+            b = ox * d[0]
+            b += oy * d[1]
+            b += oz * d[2]
+            c = ox * ox
+            c += oy * oy
+            c += oz * oz
+            c -= self._sph_r2[j]
+            disc = b * b
+            disc -= c
+            sel = np.flatnonzero(disc >= 0)
+            if sel.size == 0:
+                continue
+            bs = np.take(b, sel)
+            root = np.sqrt(np.take(disc, sel))
+            t = -bs - root
+            t = np.where(t > eps, t, -bs + root)
+            ok = t > eps
+            ok &= t < np.minimum(np.take(tmax, sel), np.take(best, sel))
+            hit = sel[ok]
+            best[hit] = t[ok]
+            prim[hit] = self.n_triangles + j
+        return best, prim
 
     # ------------------------------------------------------------------
     # Internal entry points for the wavefront loop: SoA (3, n) float64, no checks

@@ -135,13 +135,38 @@ class SceneTables:
                              for m in scene.materials)
         self.n_tri = scene.n_triangles
         self.spheres = scene.n_spheres > 0
-        if not self.spheres and self.n_tri:
+        # Lambertian materials written out (every row of a bounce at once, no
+        # method call): albedo and f = albedo / pi per primitive, 0 on the
+        # primitives of other materials, whose rows their own BSDF overwrites
+        lamb = np.array([type(m) is Lambertian for m in scene.materials], dtype=bool)
+        #: materials called through their BSDF methods, on their rows (index arrays)
+        self.others = tuple(int(mi) for mi in np.flatnonzero(~lamb))
+        prim_mat = np.asarray(scene.prim_material, dtype=np.int64)
+        albedo = np.zeros((3, n_prim + 1))
+        f_diffuse = np.zeros((3, n_prim + 1))
+        for mi in np.flatnonzero(lamb):
+            rows = np.flatnonzero(prim_mat == mi)
+            albedo[:, rows] = scene.materials[mi].albedo[:, None]
+            f_diffuse[:, rows] = (scene.materials[mi].albedo / np.pi)[:, None]
+        self.diffuse_albedo = albedo
+        #: some material is Lambertian (its sampling written out)
+        self.any_diffuse = bool(lamb.any())
+        self.diffuse_f = f_diffuse
+        #: per primitive (and a last entry for a miss): its material is Lambertian
+        self.diffuse = np.append(lamb[prim_mat], False) if n_prim else np.zeros(1, dtype=bool)
+        self.sphere_center_soa = np.ascontiguousarray(scene.sphere_centers.T)
+        self.sphere_radius = np.asarray(scene.sphere_radii, dtype=np.float64)
+        if self.n_tri:
             nrm = tracer.triangle_normal
             both = np.stack([nrm, -nrm], axis=1).reshape(-1, 3)
             fr = Frame(both)
-            self.frame_s = np.ascontiguousarray(fr.s.T)
-            self.frame_n = np.ascontiguousarray(fr.n.T)
-            self.frame_t = np.ascontiguousarray(fr.t.T)
+            # sphere columns (2 per sphere) are placeholders: their frames are computed per hit
+            pad = np.zeros((3, 2 * scene.n_spheres))
+            self.frame_s = np.ascontiguousarray(np.concatenate([fr.s.T, pad], axis=1))
+            self.frame_n = np.ascontiguousarray(np.concatenate([fr.n.T, pad], axis=1))
+            self.frame_t = np.ascontiguousarray(np.concatenate([fr.t.T, pad], axis=1))
+            self.normal_soa = np.ascontiguousarray(np.concatenate([tracer.triangle_normal_soa,
+                                                                   pad[:, :scene.n_spheres]], axis=1))
         self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
                            and not self.hidden_emitters
                            and all(type(m) is Lambertian for m in scene.materials))
@@ -160,20 +185,62 @@ class SceneTables:
             return f"Lambertian materials only (not {', '.join(bad)})"
         return None
 
+    def groups(self, mat):
+        """``[(material, rows)]`` of the rows (codes ``mat``) whose material is not
+        Lambertian, each material's rows an index array in path order."""
+        if not self.others:
+            return []
+        if len(self.others) == 1:
+            rows = np.flatnonzero(mat == self.others[0])
+            return [(self.others[0], rows)] if rows.size else []
+        counts = np.bincount(mat, minlength=self.n_mat + 1)
+        return [(mi, np.flatnonzero(mat == mi)) for mi in self.others if counts[mi]]
+
     def geometric_normals(self, tracer, prim, p):
-        """Unit geometric normals (3, m) of primitives ``prim`` at SoA points ``p``."""
+        """Unit geometric normals (3, m) of primitives ``prim`` at SoA points ``p``
+        (spheres: outward, ``(p - c) / r``)."""
         if not self.spheres:
             return np.take(tracer.triangle_normal_soa, prim, axis=1)
-        return np.ascontiguousarray(tracer.normals(prim, p.T).T)
+        if not self.n_tri:
+            ng = np.empty((3, prim.shape[0]), dtype=p.dtype)
+            on = np.arange(prim.shape[0])
+        else:
+            ng = np.take(self.normal_soa, prim, axis=1).astype(p.dtype, copy=False)
+            on = np.flatnonzero(prim >= self.n_tri)
+        if on.size:
+            j = np.take(prim, on) - self.n_tri
+            v = np.take(p, on, axis=1) - np.take(self.sphere_center_soa, j, axis=1)
+            v /= np.take(self.sphere_radius, j)
+            ng[:, on] = v
+        return ng
 
     def frames(self, prim, ng, flip):
-        """Shading frames ``(s, n, t)``, SoA (3, m) each, normal flipped where ``flip``."""
-        if not self.spheres:
+        """Shading frames ``(s, n, t)``, SoA (3, m) each, normal flipped where ``flip``:
+        the triangles' from the table, the spheres' built per hit (Duff et al.
+        2017's basis, as :class:`mcvar.geometry.Frame`)."""
+        if self.n_tri:
             key = 2 * prim + flip
-            return (np.take(self.frame_s, key, axis=1), np.take(self.frame_n, key, axis=1),
-                    np.take(self.frame_t, key, axis=1))
-        fr = Frame(np.where(flip, -ng, ng).T)
-        return fr.s.T, fr.n.T, fr.t.T
+            fs, fn, ft = (np.take(self.frame_s, key, axis=1), np.take(self.frame_n, key, axis=1),
+                          np.take(self.frame_t, key, axis=1))
+            if not self.spheres:
+                return fs, fn, ft
+            on = np.flatnonzero(prim >= self.n_tri)
+        else:
+            m = prim.shape[0]
+            fs, fn, ft = np.empty((3, m)), np.empty((3, m)), np.empty((3, m))
+            on = np.arange(m)
+        if on.size:
+            n = np.take(ng, on, axis=1)
+            n = np.where(np.take(flip, on), -n, n)
+            n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+            x, y, z = n
+            sign = np.copysign(1.0, y)
+            a = -1.0 / (sign + y)
+            b = z * x * a
+            fs[:, on] = (sign + x * x * a, -x, b)
+            fn[:, on] = n
+            ft[:, on] = (sign * b, -sign * z, 1.0 + sign * z * z * a)
+        return fs, fn, ft
 
 
 class Transport:
