@@ -124,10 +124,12 @@ def _bsdf(vertex: Vertex, stream: SampleStream, out) -> Directions:
     method, :meth:`mcvar.bsdf.Lambertian.sample`'s numbers), then one call of
     each other material's sampler on its own rows (gathered, scattered back)."""
     m = vertex.idx.shape[0]
-    u = stream.vertex(vertex.k, BSDF, 2, vertex.idx)
+    dt = vertex.wo_local.dtype
+    u = stream.vertex(vertex.k, BSDF, 2, vertex.idx, dt)
     wo_l = vertex.wo_local
     if vertex.diffuse is not None:
-        x, y, z = _square_to_cosine_hemisphere_unchecked(u[0], u[1])
+        # float32 paths: single-precision trigonometry, as the Lambertian kernel
+        x, y, z = _square_to_cosine_hemisphere_unchecked(u[0], u[1], dt.type)
         ok = wo_l[1] > 0.0
         ok &= y > 0.0
         pdf = np.where(ok, y * _INV_PI, 0.0)
@@ -135,7 +137,7 @@ def _bsdf(vertex: Vertex, stream: SampleStream, out) -> Directions:
         weight *= ok
         wi_l = np.stack([x, y, z])
     else:
-        wi_l, weight, pdf = np.empty((3, m)), np.empty((3, m)), np.empty(m)
+        wi_l, weight, pdf = np.empty((3, m), dt), np.empty((3, m), dt), np.empty(m, dt)
     delta = np.zeros(m, dtype=bool)
     for mi, rows in vertex.groups:
         wi_g, weight_g, pdf_g, delta_g = unchecked(vertex.materials[mi], "sample")(

@@ -195,7 +195,8 @@ def _trace_general(tr: Transport, o, d) -> None:
     """
     tracer, tables, stream = tr.tracer, tr.tables, tr.stream
     materials = tables.materials
-    state = PathState(o, d)
+    dt = tables.dtype
+    state = PathState(o, d, dtype=dt)
     k = 0
     while state.n and k < tr.limit:
         k += 1
@@ -214,6 +215,7 @@ def _trace_general(tr: Transport, o, d) -> None:
             state.take(keep)
             t, prim = np.take(t, keep), np.take(prim, keep)
         m = state.n
+        t = t.astype(dt, copy=False)
         p = state.d * t
         p += state.o
         # -- emission at the hit
@@ -265,7 +267,7 @@ def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) ->
     idx = state.idx
     k, frame, wo_l = vertex.k, vertex.frame, vertex.wo_local
     tables = tr.tables
-    u = tr.stream.vertex(k, LIGHT, 2, idx)
+    u = tr.stream.vertex(k, LIGHT, 2, idx, p.dtype)
     u_sel = tr.stream.vertex(k, LIGHT_SELECT, 1, idx)[0] if tr.emitters.n_emitters > 1 else None
     w, dist, le, pdf_l, light = tr.emitters.sample_li(p, u, u_sel)
     fs, fn, ft = frame
@@ -277,7 +279,7 @@ def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) ->
     f *= ok
     if tr.mis:
         ok &= np.take(tables.diffuse, prim)
-        pdf_b = np.where(ok, wi_l[1] * _INV_PI, 0.0)
+        pdf_b = np.where(ok, wi_l[1] * _INV_PI, 0.0).astype(p.dtype, copy=False)
     materials = tables.materials
     for mi, rows in vertex.groups:
         if tables.all_delta[mi]:

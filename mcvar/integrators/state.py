@@ -148,10 +148,12 @@ class SceneTables:
             rows = np.flatnonzero(prim_mat == mi)
             albedo[:, rows] = scene.materials[mi].albedo[:, None]
             f_diffuse[:, rows] = (scene.materials[mi].albedo / np.pi)[:, None]
-        self.diffuse_albedo = albedo
+        #: precision of the general loop's path state: the tracer's ray geometry
+        self.dtype = dt = np.dtype(tracer.dtype)
+        self.diffuse_albedo = albedo.astype(dt)
         #: some material is Lambertian (its sampling written out)
         self.any_diffuse = bool(lamb.any())
-        self.diffuse_f = f_diffuse
+        self.diffuse_f = f_diffuse.astype(dt)
         #: per primitive (and a last entry for a miss): its material is Lambertian
         self.diffuse = np.append(lamb[prim_mat], False) if n_prim else np.zeros(1, dtype=bool)
         self.sphere_center_soa = np.ascontiguousarray(scene.sphere_centers.T)
@@ -162,11 +164,11 @@ class SceneTables:
             fr = Frame(both)
             # sphere columns (2 per sphere) are placeholders: their frames are computed per hit
             pad = np.zeros((3, 2 * scene.n_spheres))
-            self.frame_s = np.ascontiguousarray(np.concatenate([fr.s.T, pad], axis=1))
-            self.frame_n = np.ascontiguousarray(np.concatenate([fr.n.T, pad], axis=1))
-            self.frame_t = np.ascontiguousarray(np.concatenate([fr.t.T, pad], axis=1))
+            self.frame_s = np.ascontiguousarray(np.concatenate([fr.s.T, pad], axis=1), dtype=dt)
+            self.frame_n = np.ascontiguousarray(np.concatenate([fr.n.T, pad], axis=1), dtype=dt)
+            self.frame_t = np.ascontiguousarray(np.concatenate([fr.t.T, pad], axis=1), dtype=dt)
             self.normal_soa = np.ascontiguousarray(np.concatenate([tracer.triangle_normal_soa,
-                                                                   pad[:, :scene.n_spheres]], axis=1))
+                                                                   pad[:, :scene.n_spheres]], axis=1), dtype=dt)
         self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
                            and not self.hidden_emitters
                            and all(type(m) is Lambertian for m in scene.materials))
@@ -200,12 +202,12 @@ class SceneTables:
         """Unit geometric normals (3, m) of primitives ``prim`` at SoA points ``p``
         (spheres: outward, ``(p - c) / r``)."""
         if not self.spheres:
-            return np.take(tracer.triangle_normal_soa, prim, axis=1)
+            return np.take(self.normal_soa, prim, axis=1)
         if not self.n_tri:
-            ng = np.empty((3, prim.shape[0]), dtype=p.dtype)
+            ng = np.empty((3, prim.shape[0]), dtype=self.dtype)
             on = np.arange(prim.shape[0])
         else:
-            ng = np.take(self.normal_soa, prim, axis=1).astype(p.dtype, copy=False)
+            ng = np.take(self.normal_soa, prim, axis=1)
             on = np.flatnonzero(prim >= self.n_tri)
         if on.size:
             j = np.take(prim, on) - self.n_tri
@@ -227,7 +229,7 @@ class SceneTables:
             on = np.flatnonzero(prim >= self.n_tri)
         else:
             m = prim.shape[0]
-            fs, fn, ft = np.empty((3, m)), np.empty((3, m)), np.empty((3, m))
+            fs, fn, ft = (np.empty((3, m), dtype=self.dtype) for _ in range(3))
             on = np.arange(m)
         if on.size:
             n = np.take(ng, on, axis=1)
