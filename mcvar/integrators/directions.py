@@ -140,8 +140,9 @@ def _bsdf(vertex: Vertex, stream: SampleStream, out) -> Directions:
         wi_l, weight, pdf = np.empty((3, m), dt), np.empty((3, m), dt), np.empty(m, dt)
     delta = np.zeros(m, dtype=bool)
     for mi, rows in vertex.groups:
+        # in float64 whatever the loop's precision (the materials' own arithmetic)
         wi_g, weight_g, pdf_g, delta_g = unchecked(vertex.materials[mi], "sample")(
-            np.take(wo_l, rows, axis=1).T, np.take(u, rows, axis=1).T)
+            np.take(wo_l, rows, axis=1).T.astype(np.float64), np.take(u, rows, axis=1).T.astype(np.float64))
         wi_l[:, rows] = wi_g.T
         weight[:, rows] = weight_g.T
         delta[rows] = delta_g

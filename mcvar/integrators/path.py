@@ -284,7 +284,8 @@ def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) ->
     for mi, rows in vertex.groups:
         if tables.all_delta[mi]:
             continue                       # f = 0 and p = 0 there already (no diffuse albedo)
-        wo_g, wi_g = np.take(wo_l, rows, axis=1).T, np.take(wi_l, rows, axis=1).T
+        wo_g = np.take(wo_l, rows, axis=1).T.astype(np.float64)       # the materials' arithmetic in float64
+        wi_g = np.take(wi_l, rows, axis=1).T.astype(np.float64)
         f[:, rows] = unchecked(materials[mi], "eval")(wo_g, wi_g).T
         if tr.mis:
             pdf_b[rows] = unchecked(materials[mi], "pdf")(wo_g, wi_g)

@@ -169,6 +169,15 @@ class SceneTables:
             self.frame_t = np.ascontiguousarray(np.concatenate([fr.t.T, pad], axis=1), dtype=dt)
             self.normal_soa = np.ascontiguousarray(np.concatenate([tracer.triangle_normal_soa,
                                                                    pad[:, :scene.n_spheres]], axis=1), dtype=dt)
+        #: one quad light of constant radiance, one-sided, and no other emitter:
+        #: emission found by rays written out (:meth:`Transport.hit_emission`)
+        self.quad_emission = None
+        if emitters.single_quad and not self.hidden_emitters and scene.checker_period is None:
+            em_prims = np.flatnonzero(self.emits[:-1])
+            if (not np.any(scene.prim_two_sided_emission[em_prims])
+                    and np.all(scene.prim_emission[em_prims] == scene.light_radiance[0])):
+                self.quad_emission = (scene.light_radiance[0].astype(np.float64),
+                                      [float(c) for c in scene.light_normal[0]], float(emitters.pdf_area[0]))
         self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
                            and not self.hidden_emitters
                            and all(type(m) is Lambertian for m in scene.materials))
@@ -338,6 +347,9 @@ class Transport:
         lit = np.flatnonzero(np.take(emits, prim))
         if not lit.size:
             return
+        if self.tables.quad_emission is not None:
+            self._quad_emission(k, state, p, lit)
+            return
         pl, dl, ol = p[:, lit].T, state.d[:, lit].T, state.o[:, lit].T
         pl, dl, ol = (np.asarray(a, dtype=np.float64) for a in (pl, dl, ol))
         pr = prim[lit]
@@ -345,6 +357,39 @@ class Transport:
         w = self.emission_weight(k, np.asarray(state.prev_pdf[lit], dtype=np.float64),
                                  lambda: self.emitters.pdf_li(pr, ol, pl))
         self.add(state.idx[lit], state.beta[:, lit] * le.T * w)
+
+    def _quad_emission(self, k, state: PathState, p, lit) -> None:
+        """:meth:`hit_emission` written out for the one quad light of
+        :attr:`SceneTables.quad_emission`: ``beta Le w`` on its front, ``w``
+        from :meth:`emission_weight`'s rules with NEE's density ``p_A r^2 /
+        cos_l`` (no emitter NEE cannot sample in such scenes)."""
+        le, n, pdf_area = self.tables.quad_emission
+        d = np.take(state.d, lit, axis=1)
+        cos_l = d[0] * -n[0]
+        cos_l -= d[1] * n[1]
+        cos_l -= d[2] * n[2]
+        front = cos_l > 0.0
+        if not front.all():
+            lit, cos_l = lit[front], cos_l[front]
+            if not lit.size:
+                return
+        val = np.take(state.beta, lit, axis=1) * le[:, None]
+        if k > 1:
+            prev = np.take(state.prev_pdf, lit)
+            delta = np.isinf(prev)
+            if not self.bsdf_hits:
+                val *= delta                # light sampling counted the rest
+            elif self.nee and self.mis:
+                v = np.take(p, lit, axis=1) - np.take(state.o, lit, axis=1)
+                r = dot(v, v)
+                r *= pdf_area
+                r /= cos_l                  # NEE's density of this point
+                r /= np.where(delta, 1.0, prev)
+                if self.settings.heuristic == "power":
+                    r *= r
+                r += 1.0
+                val /= np.where(delta, 1.0, r)
+        self.add(np.take(state.idx, lit), val)
 
     def miss_emission(self, k, state: PathState, miss) -> None:
         """Add the environment's radiance along the rays ``miss`` that left the scene."""
