@@ -75,3 +75,80 @@ def test_float32_path_state_agrees_with_float64(name, depth, rows):
     z = norm.isf(0.5 * sidak_significance(2 * norm.sf(5.0), 3))
     assert np.all(np.abs(ma - mb) < z * np.hypot(sa, sb)), (ma, mb, sa, sb)
     assert ma.min() > 10 * sa.max()        # the comparison sees light, not noise
+
+
+def test_two_workers_give_the_image_of_one_on_the_spheres():
+    # the general loop's image is a pure function of the seed: batches draw their
+    # own numbers, whichever process runs them (the pool, or the caller stealing
+    # from the queue's end); the pilot's allocation then decides the same batches
+    from mcvar.adaptive import render_adaptive
+
+    scene = load_scene("cornell-spheres")
+    kw = dict(spp=128, res=32, sampler="sobol", rng=2027)      # 2^17 paths: several batches per stage
+    a = render_adaptive(scene, workers=1, **kw)
+    b = render_adaptive(scene, workers=2, **kw)
+    assert a.image.any() and len(np.unique(a.spp_map)) > 1
+    np.testing.assert_array_equal(a.image, b.image)
+    np.testing.assert_array_equal(a.spp_map, b.spp_map)
+
+
+@pytest.mark.parametrize("radius,offset", [(100.0, 0.0), (0.01, 1000.0), (3.0, -5e4)])
+def test_sphere_hits_of_float32_rays_equal_their_float64_solution(radius, offset):
+    # float32 rays are screened by a float32 discriminant and solved in float64:
+    # the answers must be those of the same rays converted to float64 exactly,
+    # also for near-tangent rays, origins on the sphere and tiny spheres far
+    # from the origin (the screen's error is relative to |o - c|, not to |o|)
+    from mcvar.scene import Scene
+    from mcvar.bsdf import Lambertian
+    from mcvar.scene import Camera
+
+    rng = np.random.default_rng(31)
+    centres = np.array([[offset, 0.0, 0.0], [offset + 3 * radius, radius, 0.0]])
+    scene = Scene(name="balls", description="two spheres", triangles=np.zeros((0, 3, 3)),
+                  sphere_centers=centres, sphere_radii=np.array([radius, 0.5 * radius]),
+                  prim_material=[0, 0], prim_emission=np.zeros((2, 3)),
+                  prim_two_sided_emission=np.zeros(2, dtype=bool), prim_light=[-1, -1], prim_group=[0, 0],
+                  materials=(Lambertian(),), material_names=("white",),
+                  light_origin=np.zeros((0, 3)), light_edge1=np.zeros((0, 3)), light_edge2=np.zeros((0, 3)),
+                  light_radiance=np.zeros((0, 3)), camera=Camera((offset, 0, -10 * radius), (offset, 0, 0),
+                                                                 (0, 1, 0), 40.0),
+                  ray_epsilon=1e-4 * radius)
+    tracer = Tracer(scene)
+    n = 20000
+    # origins around the spheres, on the first sphere's surface, and aimed near its rim
+    o = centres[0] + radius * rng.normal(size=(n, 3)) * 3
+    on = rng.random(n) < 0.3
+    v = rng.normal(size=(n, 3))
+    o[on] = centres[0] + radius * v[on] / np.linalg.norm(v[on], axis=1, keepdims=True)
+    rim = centres[0] + radius * v / np.linalg.norm(v, axis=1, keepdims=True) * (1 + 1e-7 * rng.normal(size=(n, 1)))
+    d = np.where(rng.random((n, 1)) < 0.5, rim - o, rng.normal(size=(n, 3)))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o32, d32 = o.T.astype(np.float32), d.T.astype(np.float32)
+    t32, p32 = tracer.closest_soa(o32, d32)
+    t64, p64 = tracer.closest_soa(o32.astype(np.float64), d32.astype(np.float64))
+    assert 0.2 < np.mean(p64 >= 0) < 0.9
+    np.testing.assert_array_equal(p32, p64)
+    np.testing.assert_array_equal(t32, t64)
+    tm = np.where(np.isfinite(t64), 0.5 * t64, 1e9 * radius)
+    np.testing.assert_array_equal(tracer.occluded_soa(o32, d32, tm), tracer.occluded_soa(
+        o32.astype(np.float64), d32.astype(np.float64), tm))
+
+
+def test_float32_directions_reach_the_materials_as_float64_unit_vectors():
+    # a float32 direction after two frame changes can be 1e-6 off unit length,
+    # which Glass's refract (as_unit_directions) refuses: unit64 renormalises
+    from mcvar.bsdf import Glass
+    from mcvar.integrators.directions import unchecked, unit64
+
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(3, 1000))
+    v /= np.sqrt((v * v).sum(axis=0))
+    v = (v * (1.0 + 2e-6)).astype(np.float32)           # what a long float32 chain can leave
+    with pytest.raises(ValueError, match="unit vectors"):
+        Glass().sample(v.T.astype(np.float64), rng.random((1000, 2)))
+    w = unit64(v)
+    assert w.dtype == np.float64 and w.shape == (1000, 3)
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(w, v.T / (1.0 + 2e-6), rtol=1e-6)     # the direction kept
+    wi, weight, pdf, delta = unchecked(Glass(), "sample")(w, rng.random((1000, 2)))
+    assert np.all(delta) and np.all(np.isfinite(wi))

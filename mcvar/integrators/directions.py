@@ -28,7 +28,7 @@ from ..bsdf import BSDF as BSDF_BASE
 from ..warps import _INV_PI, _square_to_cosine_hemisphere_unchecked
 from .stream import BSDF, SampleStream
 
-__all__ = ["Vertex", "Directions", "sample_directions", "unchecked"]
+__all__ = ["Vertex", "Directions", "sample_directions", "unchecked", "unit64"]
 
 
 @dataclass
@@ -137,12 +137,11 @@ def _bsdf(vertex: Vertex, stream: SampleStream, out) -> Directions:
         weight *= ok
         wi_l = np.stack([x, y, z])
     else:
-        wi_l, weight, pdf = np.empty((3, m), dt), np.empty((3, m), dt), np.empty(m, dt)
+        wi_l, weight, pdf = np.empty((3, m), dt), np.empty((3, m)), np.empty(m)
     delta = np.zeros(m, dtype=bool)
     for mi, rows in vertex.groups:
-        # in float64 whatever the loop's precision (the materials' own arithmetic)
         wi_g, weight_g, pdf_g, delta_g = unchecked(vertex.materials[mi], "sample")(
-            np.take(wo_l, rows, axis=1).T.astype(np.float64), np.take(u, rows, axis=1).T.astype(np.float64))
+            unit64(np.take(wo_l, rows, axis=1)), np.take(u, rows, axis=1).T.astype(np.float64))
         wi_l[:, rows] = wi_g.T
         weight[:, rows] = weight_g.T
         delta[rows] = delta_g
@@ -161,6 +160,16 @@ def unchecked(material, name: str):
     if name == "sample":
         return lambda wo, u: material.sample(wo, u, return_delta=True)
     return getattr(material, name)
+
+
+def unit64(v):
+    """SoA directions (3, m) as float64 rows (m, 3) of unit length: the
+    materials' arithmetic in float64 whatever the loop's precision, and a
+    float32 direction's length error (a few 1e-7 after two frame changes) is
+    not left for the materials' unit-vector checks to trip on."""
+    v = v.T.astype(np.float64)
+    v /= np.sqrt(np.einsum("ij,ij->i", v, v))[:, None]
+    return v
 
 
 def _cosine(vertex: Vertex, stream: SampleStream, out) -> Directions:

@@ -42,7 +42,7 @@ import numpy as np
 from .._validation import as_rng
 from ..tracer import Tracer
 from ..warps import _INV_PI
-from .directions import Vertex, sample_directions, unchecked
+from .directions import Vertex, sample_directions, unchecked, unit64
 from .emitters import Emitters, VisibleLights
 from .film import BatchJob, BatchResult, camera_result
 from .lambertian import trace_lambertian
@@ -196,7 +196,7 @@ def _trace_general(tr: Transport, o, d) -> None:
     tracer, tables, stream = tr.tracer, tr.tables, tr.stream
     materials = tables.materials
     dt = tables.dtype
-    state = PathState(o, d, dtype=dt)
+    state = PathState(o, d, dtype=dt, weight_dtype=np.float64)
     k = 0
     while state.n and k < tr.limit:
         k += 1
@@ -279,13 +279,12 @@ def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) ->
     f *= ok
     if tr.mis:
         ok &= np.take(tables.diffuse, prim)
-        pdf_b = np.where(ok, wi_l[1] * _INV_PI, 0.0).astype(p.dtype, copy=False)
+        pdf_b = np.where(ok, wi_l[1] * _INV_PI, 0.0)
     materials = tables.materials
     for mi, rows in vertex.groups:
         if tables.all_delta[mi]:
             continue                       # f = 0 and p = 0 there already (no diffuse albedo)
-        wo_g = np.take(wo_l, rows, axis=1).T.astype(np.float64)       # the materials' arithmetic in float64
-        wi_g = np.take(wi_l, rows, axis=1).T.astype(np.float64)
+        wo_g, wi_g = unit64(np.take(wo_l, rows, axis=1)), unit64(np.take(wi_l, rows, axis=1))
         f[:, rows] = unchecked(materials[mi], "eval")(wo_g, wi_g).T
         if tr.mis:
             pdf_b[rows] = unchecked(materials[mi], "pdf")(wo_g, wi_g)

@@ -39,29 +39,35 @@ def dot(a, b):
 class PathState:
     """The live paths of a wavefront, structure-of-arrays.
 
-    One ``(10, n)`` block holds per path: origin (rows 0-2), direction
-    (3-5), throughput ``beta`` (6-8) and the solid-angle pdf of the bounce
-    that made the current ray (9; ``inf`` for a camera ray or a delta bounce,
-    whose emission gets MIS weight 1); ``idx`` is each path's row in the
-    output. Compaction (:meth:`take`) is one ``np.take`` of the block.
+    Two blocks hold per path: the ray, origin (rows 0-2) and direction
+    (3-5) of :attr:`geo`, and in :attr:`weights` the throughput ``beta``
+    (rows 0-2) and the solid-angle pdf of the bounce that made the current
+    ray (3; ``inf`` for a camera ray or a delta bounce, whose emission gets
+    MIS weight 1); ``idx`` is each path's row in the output. Compaction
+    (:meth:`take`) is one ``np.take`` per block.
 
     Parameters
     ----------
     origins, directions : array_like, shape (3, n)
     dtype : numpy dtype
-        float64 for the general loop; the Lambertian loop keeps the block in
-        the ray geometry's precision (radiance is accumulated in float64).
+        Precision of the rays: the tracer's (float32 by default).
+    weight_dtype : numpy dtype, optional
+        Precision of ``beta`` and the pdf (default ``dtype``): the general
+        loop keeps them in float64, so that a throughput is the exact product
+        of its BSDF weights (the furnace's geometric sums); the Lambertian
+        kernel keeps everything in float32 (radiance is accumulated in float64).
     """
 
-    __slots__ = ("data", "idx")
+    __slots__ = ("geo", "weights", "idx")
 
-    def __init__(self, origins, directions, dtype=np.float64):
+    def __init__(self, origins, directions, dtype=np.float64, weight_dtype=None):
         n = np.shape(origins)[1]
-        self.data = np.empty((10, n), dtype=dtype)
-        self.data[0:3] = origins
-        self.data[3:6] = directions
-        self.data[6:9] = 1.0
-        self.data[9] = np.inf
+        self.geo = np.empty((6, n), dtype=dtype)
+        self.geo[0:3] = origins
+        self.geo[3:6] = directions
+        self.weights = np.empty((4, n), dtype=dtype if weight_dtype is None else weight_dtype)
+        self.weights[0:3] = 1.0
+        self.weights[3] = np.inf
         self.idx = np.arange(n)
 
     @property
@@ -70,23 +76,24 @@ class PathState:
 
     @property
     def o(self):
-        return self.data[0:3]
+        return self.geo[0:3]
 
     @property
     def d(self):
-        return self.data[3:6]
+        return self.geo[3:6]
 
     @property
     def beta(self):
-        return self.data[6:9]
+        return self.weights[0:3]
 
     @property
     def prev_pdf(self):
-        return self.data[9]
+        return self.weights[3]
 
     def take(self, rows) -> None:
         """Keep (and reorder to) the paths at positions ``rows``."""
-        self.data = np.take(self.data, rows, axis=1)
+        self.geo = np.take(self.geo, rows, axis=1)
+        self.weights = np.take(self.weights, rows, axis=1)
         self.idx = np.take(self.idx, rows)
 
 
@@ -150,10 +157,10 @@ class SceneTables:
             f_diffuse[:, rows] = (scene.materials[mi].albedo / np.pi)[:, None]
         #: precision of the general loop's path state: the tracer's ray geometry
         self.dtype = dt = np.dtype(tracer.dtype)
-        self.diffuse_albedo = albedo.astype(dt)
+        self.diffuse_albedo = albedo                # float64: the throughput's factors stay exact
         #: some material is Lambertian (its sampling written out)
         self.any_diffuse = bool(lamb.any())
-        self.diffuse_f = f_diffuse.astype(dt)
+        self.diffuse_f = f_diffuse
         #: per primitive (and a last entry for a miss): its material is Lambertian
         self.diffuse = np.append(lamb[prim_mat], False) if n_prim else np.zeros(1, dtype=bool)
         self.sphere_center_soa = np.ascontiguousarray(scene.sphere_centers.T)
@@ -396,6 +403,8 @@ class Transport:
         if self.emitters.env is None or not miss.size:
             return
         dm = np.asarray(state.d[:, miss].T, dtype=np.float64)
+        if state.d.dtype != np.float64:        # float32 rays: unit length in float64 for the map's checks
+            dm /= np.sqrt(np.einsum("ij,ij->i", dm, dm))[:, None]
         le = self.emitters.env.radiance(dm)
         w = self.emission_weight(k, np.asarray(state.prev_pdf[miss], dtype=np.float64),
                                  lambda: self.emitters.environment_pdf(dm))
@@ -419,7 +428,7 @@ def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
     alive &= bmax > 0.0
     if tr.roulette and k >= tr.rr_start:
         q = np.minimum(bmax / tr.rr_threshold if tr.rr_threshold != 1.0 else bmax, 0.95)
-        u = tr.stream.vertex(k, ROULETTE, 1, state.idx, state.data.dtype)[0]
+        u = tr.stream.vertex(k, ROULETTE, 1, state.idx, state.weights.dtype)[0]
         survive = u < q
         beta /= np.where(survive, q, 1.0)
         alive &= survive
