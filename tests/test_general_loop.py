@@ -152,3 +152,65 @@ def test_float32_directions_reach_the_materials_as_float64_unit_vectors():
     np.testing.assert_allclose(w, v.T / (1.0 + 2e-6), rtol=1e-6)     # the direction kept
     wi, weight, pdf, delta = unchecked(Glass(), "sample")(w, rng.random((1000, 2)))
     assert np.all(delta) and np.all(np.isfinite(wi))
+
+
+# -- caustics by light tracing ---------------------------------------------------
+
+def test_caustics_by_light_tracing_agree_with_path_tracing():
+    # caustics='light' partitions the paths: path tracing drops E D S+ L, light
+    # tracing adds exactly those; the image must agree with path tracing's in
+    # expectation, over the image and over the caustic under the glass sphere
+    # (where the paths moved), per channel within 5 combined standard errors
+    # (Sidak over 3 channels x 2 regions). Random sampler: iid standard errors.
+    from scipy.stats import norm
+
+    from mcvar.experiments.compare import CAUSTIC_REGION
+    from mcvar.integrators import render
+    from mcvar.testing import sidak_significance
+
+    scene = load_scene("cornell-spheres")
+    res = 16
+    kw = dict(spp=1024, res=res, sampler="random")
+    a = render(scene, rng=21, caustics="path", **kw)
+    b = render(scene, rng=22, caustics="light", **kw)
+    r0, r1, c0, c1 = (int(round(f * res)) for f in CAUSTIC_REGION)
+    z = norm.isf(0.5 * sidak_significance(2 * norm.sf(5.0), 6))
+    for rows, cols in ((slice(None), slice(None)), (slice(r0, r1), slice(c0, c1))):
+        (ma, sa), (mb, sb) = _means_region(a, rows, cols), _means_region(b, rows, cols)
+        assert np.all(np.abs(ma - mb) < z * np.hypot(sa, sb)), (rows, ma, mb, sa, sb)
+    # the caustic's standard error falls: the light tracer finds those paths better
+    (_, sa), (_, sb) = _means_region(a, slice(r0, r1), slice(c0, c1)), _means_region(b, slice(r0, r1), slice(c0, c1))
+    assert np.all(sb < 0.8 * sa), (sa, sb)
+
+
+def _means_region(r, rows, cols):
+    img, var = r.image[rows, cols], r.variance[rows, cols]
+    n = img.shape[0] * img.shape[1]
+    return img.mean(axis=(0, 1)), np.sqrt(var.sum(axis=(0, 1)) / r.spp) / n
+
+
+def test_caustics_setting_changes_nothing_where_it_does_not_apply():
+    # no specular material (the Cornell box), or a point light (cornell-point):
+    # path tracing keeps every path and no light path is traced: the same image
+    from mcvar.integrators import render
+    from mcvar.integrators.state import light_caustics_apply
+
+    for name in ("cornell", "cornell-point"):
+        scene = load_scene(name)
+        assert not light_caustics_apply(scene)
+        kw = dict(spp=16, res=16, sampler="sobol", rng=3, kernel="general")
+        a, b = render(scene, caustics="path", **kw), render(scene, caustics="light", **kw)
+        np.testing.assert_array_equal(a.image, b.image)
+        assert a.rays == b.rays
+    assert light_caustics_apply(load_scene("cornell-spheres"))
+
+
+def test_caustic_light_paths_give_the_image_of_one_worker_on_two():
+    from mcvar.adaptive import render_adaptive
+
+    scene = load_scene("cornell-spheres")
+    kw = dict(spp=64, res=32, sampler="sobol", rng=9, caustics="light")
+    a, b = render_adaptive(scene, workers=1, **kw), render_adaptive(scene, workers=2, **kw)
+    np.testing.assert_array_equal(a.image, b.image)
+    c = render_adaptive(scene, workers=1, **{**kw, "caustics": "path"})
+    assert not np.array_equal(a.image, c.image)

@@ -20,7 +20,7 @@ from .emitters import Emitters, VisibleLights
 from .settings import HEURISTICS, PathSettings, Strategies
 from .stream import ROULETTE, SampleStream
 
-__all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot",
+__all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot", "light_caustics_apply",
            "RR_START_DEPTH", "RR_MAX_DEPTH"]
 
 #: Russian roulette starts once a path has this many segments.
@@ -58,7 +58,7 @@ class PathState:
         kernel keeps everything in float32 (radiance is accumulated in float64).
     """
 
-    __slots__ = ("geo", "weights", "idx")
+    __slots__ = ("geo", "weights", "idx", "tag")
 
     def __init__(self, origins, directions, dtype=np.float64, weight_dtype=None):
         n = np.shape(origins)[1]
@@ -69,6 +69,8 @@ class PathState:
         self.weights[0:3] = 1.0
         self.weights[3] = np.inf
         self.idx = np.arange(n)
+        #: optional per-path flags kept through compaction (the caustic prefix)
+        self.tag = None
 
     @property
     def n(self) -> int:
@@ -95,6 +97,8 @@ class PathState:
         self.geo = np.take(self.geo, rows, axis=1)
         self.weights = np.take(self.weights, rows, axis=1)
         self.idx = np.take(self.idx, rows)
+        if self.tag is not None:
+            self.tag = np.take(self.tag, rows)
 
 
 def _flips(material) -> bool:
@@ -185,6 +189,8 @@ class SceneTables:
                     and np.all(scene.prim_emission[em_prims] == scene.light_radiance[0])):
                 self.quad_emission = (scene.light_radiance[0].astype(np.float64),
                                       [float(c) for c in scene.light_normal[0]], float(emitters.pdf_area[0]))
+        #: ``caustics='light'`` applies (:func:`~mcvar.integrators.caustics.light_caustics_apply`)
+        self.light_caustics = self.quad_emission is not None and light_caustics_apply(scene)
         self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
                            and not self.hidden_emitters
                            and all(type(m) is Lambertian for m in scene.materials))
@@ -304,6 +310,10 @@ class Transport:
         #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
         #: by camera rays is left to the caller's exact image (None: sampled)
         self.visible = VisibleLights(scene) if settings.visible_lights == "exact" else None
+        #: caustic paths ``E D S+ L`` are light tracing's (:mod:`~mcvar.integrators.caustics`):
+        #: their emission is left out here
+        self.caustic_light = (settings.caustics == "light" and tables.light_caustics and self.bsdf_hits
+                              and self.limit >= 3)
 
     def add(self, rows, value) -> None:
         """``radiance[:, rows] += value`` for distinct ``rows``, one channel at a
@@ -380,6 +390,11 @@ class Transport:
             lit, cos_l = lit[front], cos_l[front]
             if not lit.size:
                 return
+        if self.caustic_light and k >= 3:
+            keep = ~np.take(state.tag, lit)           # E D S+ L: the light tracer's
+            lit, cos_l = lit[keep], cos_l[keep]
+            if not lit.size:
+                return
         val = np.take(state.beta, lit, axis=1) * le[:, None]
         if k > 1:
             prev = np.take(state.prev_pdf, lit)
@@ -409,6 +424,25 @@ class Transport:
         w = self.emission_weight(k, np.asarray(state.prev_pdf[miss], dtype=np.float64),
                                  lambda: self.emitters.environment_pdf(dm))
         self.add(state.idx[miss], state.beta[:, miss] * le.T * w)
+
+
+def light_caustics_apply(scene) -> bool:
+    """Whether ``caustics='light'`` changes anything on ``scene``: one quad light of
+    constant one-sided radiance and nothing else emitting, every material purely
+    specular or without a specular lobe, and some of each (:mod:`mcvar.integrators.caustics`)."""
+    em = Emitters(scene)
+    if not em.single_quad or scene.checker_period is not None:
+        return False
+    emits = np.any(scene.prim_emission > 0, axis=1)
+    if np.any(emits & (scene.prim_light < 0)) or np.any(scene.prim_two_sided_emission[emits]):
+        return False
+    if not np.all(scene.prim_emission[emits] == scene.light_radiance[0]):
+        return False
+    delta = [bool(getattr(m, "is_delta", False)) for m in scene.materials]
+    mixed = [bool(getattr(m, "has_delta", False)) and not d for m, d in zip(scene.materials, delta)]
+    used = np.unique(scene.prim_material)
+    return (not any(mixed[i] for i in used) and any(delta[i] for i in used)
+            and not all(delta[i] for i in used))
 
 
 def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
