@@ -25,8 +25,10 @@ Depth convention (CORNELL.md): a path of ``k`` segments has depth ``k``;
 illumination, ``3`` one indirect bounce, and so on. The ``direct*``
 methods are depth 2.
 
-Two loops run these estimators: the general one here (any material, sorted
-by material each bounce, BSDF method calls) and the Lambertian kernel of
+Two loops run these estimators: the general one here (any material; rays in
+path order, Lambertian materials written out on every row and the other
+BSDFs called unchecked on their own rows; rays in the tracer's precision,
+throughputs in float64) and the Lambertian kernel of
 :mod:`mcvar.integrators.lambertian` (the same estimator written out for
 scenes of Lambertian triangles and one quad light). The option
 ``kernel='auto'`` picks the Lambertian kernel where the scene allows it;

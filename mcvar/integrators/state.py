@@ -4,7 +4,8 @@
   block (origin, direction, throughput ``beta``, the previous bounce's pdf)
   plus the paths' indices, so that compaction is one ``np.take``.
 * :class:`SceneTables`: per-scene constants of the shading loop (material
-  codes for the sort, shading frames of triangles, which materials flip).
+  codes, Lambertian albedo per primitive, shading frames of triangles, which
+  materials flip).
 * :class:`Transport`: one trace's strategies and
   :class:`~mcvar.integrators.settings.PathSettings`, and its radiance accumulator; adds emission found
   by rays with its MIS weight.
@@ -111,9 +112,10 @@ def _flips(material) -> bool:
 class SceneTables:
     """Per-scene constants of the shading loop (built once per trace).
 
-    Materials are dispatched on contiguous slices: the rays are sorted by
-    material once per bounce (a stable sort of small integer codes), so
-    every material is called once per bounce on a slice. Triangles have
+    The rays stay in path order (no sort): Lambertian materials are a
+    per-primitive albedo table (0 on other materials' primitives) applied to
+    every row at once, and every other material is called once per bounce on
+    its own rows (:meth:`groups`, index arrays). Triangles have
     constant normals: their shading frames, for both orientations, are a
     table indexed by ``2 prim + flipped``.
 
