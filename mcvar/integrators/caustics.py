@@ -45,7 +45,7 @@ import numpy as np
 from ..geometry import Frame
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult, splat
-from .light import _bsdf_eval, _flips, _shading_normals, _unoccluded
+from .light import _Context, _bsdf_eval, _shading_normals, _unoccluded
 from .registry import Method
 from .state import light_caustics_apply
 
@@ -82,10 +82,8 @@ def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None 
     w, h = res
     image = np.zeros((w * h, 3))
     origins = LightOrigins(scene)
-    cam = scene.camera
-    eps = float(scene.ray_epsilon)
-    flips = _flips(scene)
-    delta_mat = np.array([bool(getattr(m, "is_delta", False)) for m in scene.materials])
+    ctx = _Context(scene, tracer, origins, res)
+    eps, flips, delta_mat = ctx.eps, ctx.flips, ctx.delta_mat
     prim_mat = np.asarray(scene.prim_material)
     rays = 0
     for a in range(0, n_paths, _CHUNK):
@@ -112,8 +110,7 @@ def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None 
             spec = np.take(delta_mat, mat)
             join = np.flatnonzero(~spec & through)
             if join.size:
-                rays += _join_camera(scene, tracer, cam, res, eps, flips, image, p[join], ng[join], -d[join],
-                                     mat[join], beta[join])
+                rays += _join_camera(ctx, image, p[join], ng[join], -d[join], mat[join], beta[join])
             # only specular vertices go on (a first non-specular vertex: path tracing's)
             if j == last:
                 break
@@ -140,13 +137,14 @@ def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None 
     return image, rays
 
 
-def _join_camera(scene, tracer, cam, res, eps, flips, image, p, ng, wo, mat, beta) -> int:
+def _join_camera(ctx, image, p, ng, wo, mat, beta) -> int:
     """Join non-specular light vertices ``p`` (reached along ``-wo``) to the pinhole
     and splat ``beta f |cos| We / pdf`` (:func:`mcvar.integrators.light._connect_camera`
     for ``s >= 2``, weight 1). Returns the shadow rays traced."""
+    scene, tracer, cam, res, eps = ctx.scene, ctx.tracer, ctx.scene.camera, ctx.res, ctx.eps
     wi, dist, we, pdf, xy, visible = cam.sample_Wi(p, res)
     cos_q = np.abs(_dot(ng, wi))
-    f, _, _ = _bsdf_eval(scene, flips, mat, ng, wo, wi, need_pdf=False)
+    f, _, _ = _bsdf_eval(scene, ctx.flips, mat, ng, wo, wi, need_pdf=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         value = beta * f * np.where(visible, cos_q * we / pdf, 0.0)[:, None]
     go = np.flatnonzero(value.max(axis=1) > 0.0)
