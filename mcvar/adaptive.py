@@ -8,8 +8,9 @@ it. :func:`render_adaptive` is :func:`mcvar.integrators.render` with
 standard deviation, Neyman's allocation in powers of two spends the rest, the
 second stage's samples alone make the image, so it is unbiased) and the
 defaults ``mcvar render`` uses (docs/performance.md): the Sobol' sampler, the
-lights seen directly integrated exactly (``visible_lights='exact'``) and
-Russian roulette as a weight window (``rr_threshold=0.2`` from 3 segments).
+lights seen directly integrated exactly (``visible_lights='exact'``),
+Russian roulette as a weight window (``rr_threshold=0.2`` from 3 segments)
+and caustic paths by light tracing (``caustics='light'``, where the scene allows it).
 The same driver runs it: workers, executors, progress, Ctrl-C and the memory
 guard are those of :func:`~mcvar.integrators.render`.
 """
@@ -35,9 +36,11 @@ ADAPTIVE_RR_DEPTH = 3
 ADAPTIVE_RR_THRESHOLD = 0.2
 
 #: The path settings of adaptive renders (and ``mcvar render``'s default), for
-#: the methods that take them (the path methods).
+#: the methods that take them (the path methods). ``caustics='light'``: caustic
+#: paths by light tracing where the scene allows it (:mod:`mcvar.integrators.caustics`;
+#: on ``cornell-spheres`` MSE 2.33e-4 -> 1.36e-4 for +10% CPU time).
 ADAPTIVE_SETTINGS = {"rr_depth": ADAPTIVE_RR_DEPTH, "visible_lights": "exact",
-                     "rr_threshold": ADAPTIVE_RR_THRESHOLD}
+                     "rr_threshold": ADAPTIVE_RR_THRESHOLD, "caustics": "light"}
 
 #: The fields of :class:`~mcvar.integrators.allocation.Adaptive` render_adaptive takes as keywords.
 _ALLOCATION_KEYS = ("pilot_spp", "min_spp", "max_spp", "exponent")

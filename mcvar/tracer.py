@@ -431,24 +431,74 @@ class Tracer:
         return occ
 
     def _spheres(self, o, d, tmax):
-        """Closest sphere hits (float64), SoA rays (3, n)."""
+        """Closest sphere hits, SoA rays (3, n): solved in float64.
+
+        One sphere at a time, written out (no ``(S, 3, n)`` temporaries). The
+        discriminant is computed in the rays' own precision on every ray; rays
+        whose line clearly misses the sphere (a float32 discriminant below
+        ``-1e-5 (|o - c|^2 + r^2)``, a margin of ~170 float32 roundings of its
+        terms) are dropped, and the others are solved in float64 from the same
+        (exactly converted) numbers, so the hits are those of a float64 test
+        of every ray. A nearer sphere replaces a hit only where it is strictly
+        nearer (ties: the lower index, as ``argmin``).
+        """
         n = o.shape[1]
-        if self.n_spheres == 0:
-            return np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
-        oc = o[None, :, :] - self._sph_c[:, :, None]          # (S, 3, n)
-        b = np.einsum("skn,kn->sn", oc, d)
-        c = np.einsum("skn,skn->sn", oc, oc) - self._sph_r2[:, None]
-        disc = b * b - c
-        root = np.sqrt(np.maximum(disc, 0.0))
-        t0 = -b - root
-        t1 = -b + root
+        best = np.full(n, np.inf)
+        prim = np.full(n, -1, dtype=np.int64)
         eps = self.epsilon
-        t = np.where(t0 > eps, t0, t1)
-        ok = (disc >= 0) & (t > eps) & (t < tmax[None, :])
-        t = np.where(ok, t, np.inf)
-        j = np.argmin(t, axis=0)
-        best = np.take_along_axis(t, j[None], axis=0)[0]
-        return best, np.where(np.isfinite(best), self.n_triangles + j, -1)
+        tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,))
+        single = o.dtype == np.float32 and d.dtype == np.float32
+        for j in range(self.n_spheres):
+            c64 = self._sph_c[j]
+            r2 = float(self._sph_r2[j])
+            if single:
+                # o - c rounded once (computed in float64): its float32 error is relative to |o - c|
+                ox, oy, oz = (np.subtract(o[i], c64[i], dtype=np.float64).astype(o.dtype) for i in range(3))
+            else:
+                ox, oy, oz = o[0] - c64[0], o[1] - c64[1], o[2] - c64[2]
+            b = ox * d[0]
+            b += oy * d[1]
+            b += oz * d[2]
+            c = ox * ox
+            c += oy * oy
+            c += oz * oz
+            disc = b * b
+            if single:
+                # disc + 1e-5 (|oc|^2 + r^2) >= |oc|^2 - r^2  (conservative in float32)
+                disc -= c * (1.0 - 1e-5)
+                sel = np.flatnonzero(disc >= -(1.0 + 1e-5) * r2)
+                if sel.size == 0:
+                    continue
+                os_ = np.take(o, sel, axis=1).astype(np.float64)     # exact
+                ds = np.take(d, sel, axis=1).astype(np.float64)
+                oc = os_ - c64[:, None]
+                bs = oc[0] * ds[0]
+                bs += oc[1] * ds[1]
+                bs += oc[2] * ds[2]
+                cs = oc[0] * oc[0]
+                cs += oc[1] * oc[1]
+                cs += oc[2] * oc[2]
+                cs -= r2
+                ds2 = bs * bs
+                ds2 -= cs
+                ok = ds2 >= 0
+                sel, bs, ds2 = sel[ok], bs[ok], ds2[ok]
+            else:
+                c -= r2
+                disc -= c
+                sel = np.flatnonzero(disc >= 0)
+                bs, ds2 = np.take(b, sel), np.take(disc, sel)
+            if sel.size == 0:
+                continue
+            root = np.sqrt(ds2)
+            t = -bs - root
+            t = np.where(t > eps, t, -bs + root)
+            ok = t > eps
+            ok &= t < np.minimum(np.take(tmax, sel), np.take(best, sel))
+            hit = sel[ok]
+            best[hit] = t[ok]
+            prim[hit] = self.n_triangles + j
+        return best, prim
 
     # ------------------------------------------------------------------
     # Internal entry points for the wavefront loop: SoA (3, n) float64, no checks
@@ -466,7 +516,7 @@ class Tracer:
             t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
         if self.n_spheres:
             tm = t if tmax is None else np.minimum(np.asarray(tmax, dtype=np.float64), t)
-            ts, ps = self._spheres(np.asarray(o, dtype=np.float64), np.asarray(d, dtype=np.float64), tm)
+            ts, ps = self._spheres(o, d, tm)
             closer = ts < t
             t = np.where(closer, ts, t)
             prim = np.where(closer, ps, prim)
@@ -480,8 +530,7 @@ class Tracer:
         if self.n_spheres:
             rest = np.flatnonzero(~occ)
             if rest.size:
-                ts, _ = self._spheres(np.asarray(o[:, rest], dtype=np.float64),
-                                      np.asarray(d[:, rest], dtype=np.float64), tm[rest])
+                ts, _ = self._spheres(o[:, rest], d[:, rest], tm[rest])
                 occ[rest] = np.isfinite(ts)
         return occ
 

@@ -79,6 +79,10 @@ PLAN = {
     # below the light for some seeds (p 9e-6 with the driver's seeds of issue 20)
     ("cornell", "path_bsdf"): (256, 16),
     ("cornell", "direct_bsdf"): (256, 16),
+    # the same on the spheres: at 16 x 64 skewness p 1.9e-6 for seed 29 with f9ebaa9's loop, 7.5e-6
+    # for the test's seed once the general loop stopped sorting by material (other iid draws);
+    # at 16 x 256 p 2e-3 - 2e-2 over three seeds
+    ("cornell-spheres", "direct_bsdf"): (256, 16),
     # the caustic the mirror sphere throws on the red wall (issue 26, section 2): at 16 x 64
     # skewness p 1e-5 and max block |t| 7; the issue measured agreement from 512 spp
     ("cornell-spheres", "path"): (512, 16),

@@ -39,6 +39,7 @@ from scipy.ndimage import maximum_filter
 from .._validation import check_count
 from ..samplers import SAMPLERS, pixel_samples
 from .film import Film, Render
+from .settings import STRATEGIES
 from .stream import WHOLE_SET_FLOATS, whole_dims, whole_pattern
 
 __all__ = ["Uniform", "Adaptive", "AdaptiveRender", "allocate", "get_allocation", "ALLOCATIONS",
@@ -131,6 +132,46 @@ class Spec:
     whole: np.ndarray | None = None
 
 
+def caustic_stage(run):
+    """The caustic light paths of a render with ``caustics='light'`` (the path
+    methods that count emission found by BSDF sampling, on scenes where
+    :func:`~mcvar.integrators.caustics.light_caustics_apply`), run as a stage of
+    splat batches: their film, or None when the render has none.
+
+    ``CAUSTIC_PATH_FRACTION`` light subpaths per camera path of the render, in
+    at least two batches (the film's variance comes from their spread).
+    """
+    from .caustics import CAUSTIC_METHOD, CAUSTIC_PATH_FRACTION
+    from .state import light_caustics_apply
+
+    plan = run.plan
+    strategies = STRATEGIES.get(plan.method.name)
+    depth = plan.settings.max_depth if strategies is None or strategies.depth is None else strategies.depth
+    if (plan.settings.caustics != "light" or strategies is None or not strategies.bsdf_hits
+            or (depth is not None and depth < 3) or not light_caustics_apply(plan.scene)):
+        return None
+    n_pix = plan.n_pixels
+    spp = max(2, math.ceil(CAUSTIC_PATH_FRACTION * plan.spp))          # light paths per pixel, as spp
+    per = max(1, min(PATHS_PER_BATCH // n_pix, -(-spp // 2)))
+    specs = [Spec(None, min(per, spp - a)) for a in range(0, spp, per)]
+    film = Film(n_pix, per_sample=False)
+    run.stage(iter(specs), len(specs), run.streams.caustics, lambda spec, r: film.add(r, spec.spp),
+              method=CAUSTIC_METHOD)
+    return film
+
+
+def _with_caustics(image, variance, spp, caustic, res):
+    """``image`` plus the caustic film's image, and the variance of the sum in
+    per-sample units of ``spp`` camera samples (the two are independent)."""
+    if caustic is None or caustic.batches == 0:
+        return image, variance
+    image = image + caustic.image(res)
+    var_c = caustic.variance(res)
+    if variance is not None and var_c is not None:
+        variance = variance + var_c * (spp / caustic.spp)
+    return image, variance
+
+
 def _batch_spp(spp: int, n_pix: int, batch_spp, sampler: str) -> int:
     """Samples per pixel of a uniform batch (the last one may hold fewer)."""
     if batch_spp is not None:
@@ -185,13 +226,17 @@ class Uniform:
 
         film = Film(n_pix, per_sample=plan.method.kind in ("camera", "first_hit"))
         run.start(total=spp)
+        caustic = None
         try:
+            caustic = caustic_stage(run)
             run.stage(specs(), n_batches, run.streams.stage[0], lambda spec, r: film.add(r, spec.spp))
         except KeyboardInterrupt:
             run.interrupted = True
         extra = {k: v / film.spp for k, v in film.extra.items()} if film.spp else {}
-        return run.result(image=film.image(plan.res), variance=film.variance(plan.res), spp=film.spp,
-                          rays=film.rays, batch_spp=b, extra=extra)
+        image, variance = film.image(plan.res), film.variance(plan.res)
+        image, variance = _with_caustics(image, variance, film.spp, caustic, plan.res)
+        return run.result(image=image, variance=variance, spp=film.spp,
+                          rays=film.rays + (caustic.rays if caustic else 0), batch_spp=b, extra=extra)
 
 
 def _level_specs(levels, paths_per_batch: int):
@@ -347,6 +392,7 @@ class Adaptive:
         n_pix, spp, pilot = plan.n_pixels, plan.spp, self.pilot_spp
         w, h = plan.res
         pilot_film, film = Film(n_pix, True), Film(n_pix, True)
+        caustic = None
         counts = np.full(n_pix, spp, dtype=np.int64) if self.spp_map is None else self.spp_map.reshape(-1)
         run.start(total=int(counts.sum()) if self.spp_map is not None else n_pix * spp)
 
@@ -368,13 +414,14 @@ class Adaptive:
                                   max_spp=self.max_spp, exponent=self.exponent)
             # most samples per pixel first (seeds go by batch index: the image does not depend on the order)
             levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
+            caustic = caustic_stage(run)
             run.stage(_level_specs(levels, PATHS_PER_BATCH), _count_level_specs(levels, PATHS_PER_BATCH),
                       run.streams.stage[1], sink(film))
         except KeyboardInterrupt:
             run.interrupted = True
-        return self._result(run, pilot_film, film, counts)
+        return self._result(run, pilot_film, film, counts, caustic)
 
-    def _result(self, run, pilot_film: Film, film: Film, counts) -> AdaptiveRender:
+    def _result(self, run, pilot_film: Film, film: Film, counts, caustic=None) -> AdaptiveRender:
         """The second stage's per-pixel means; where a pixel's second stage did not
         run (Ctrl-C), its pilot mean (or 0 without one)."""
         plan = run.plan
@@ -389,8 +436,11 @@ class Adaptive:
         with np.errstate(invalid="ignore", divide="ignore"):
             var_i = np.where(n_i > 1, np.maximum(total_sq - total * total / n_i, 0.0) / np.maximum(n_i - 1, 1), 0.0)
         variance = var_i * (spent / n_i)          # variance / spp = s_i^2 / n_i
-        return run.result(image=(total / n_i).reshape(h, w, 3), variance=variance.reshape(h, w, 3), spp=spent,
-                          rays=pilot_film.rays + film.rays, batch_spp=int(counts.max()), cls=AdaptiveRender,
+        image, variance = _with_caustics((total / n_i).reshape(h, w, 3), variance.reshape(h, w, 3), spent, caustic,
+                                         plan.res)
+        return run.result(image=image, variance=variance, spp=spent,
+                          rays=pilot_film.rays + film.rays + (caustic.rays if caustic else 0),
+                          batch_spp=int(counts.max()), cls=AdaptiveRender,
                           spp_map=used.reshape(h, w), pilot_spp=self.pilot_spp)
 
 

@@ -12,8 +12,8 @@ found along the new direction uses the density returned here (the
 estimator stays unbiased for any density that is positive wherever
 ``f cos`` is, Veach 1997, sec. 9.2).
 
-Today: BSDF sampling (``material.sample(wo, u, return_delta=True)``, one
-call per material slice) and, for the Lambertian kernel's scenes, the same
+Today: BSDF sampling (Lambertian materials written out on all rows, every
+other material's sampler called once on its rows) and, for the Lambertian kernel's scenes, the same
 distribution written out (Malley's method: ``p = cos theta / pi``, weight
 ``albedo``). Both read vertex ``k``'s :data:`~mcvar.integrators.stream.BSDF`
 columns.
@@ -24,10 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..warps import _square_to_cosine_hemisphere_unchecked
+from ..bsdf import BSDF as BSDF_BASE
+from ..warps import _INV_PI, _square_to_cosine_hemisphere_unchecked
 from .stream import BSDF, SampleStream
 
-__all__ = ["Vertex", "Directions", "sample_directions"]
+__all__ = ["Vertex", "Directions", "sample_directions", "unchecked", "unit64"]
 
 
 @dataclass
@@ -45,9 +46,10 @@ class Vertex:
     wo_local : ndarray (3, m) or None
         General loop: ``wo`` in the local frame (normal flipped towards it for
         two-sided materials).
-    groups, materials : list of (material, start, end), tuple of BSDFs, or None
-        General loop: the rows are sorted by material; ``materials[mi]``
-        shades rows ``start:end``.
+    groups, materials : list of (material, rows), tuple of BSDFs, or None
+        General loop: ``materials[mi]`` shades the rows ``rows`` (an index
+        array) through its BSDF methods; the rows of Lambertian materials are
+        in no group (see ``diffuse``).
     sgn : ndarray (m,) or None
         Lambertian kernel: ``sign(wo . n)`` (the frame's normal is not flipped;
         0 where ``wo`` grazes the surface).
@@ -55,7 +57,11 @@ class Vertex:
         Lambertian kernel: the albedo of every triangle (its presence selects
         the written-out cosine sampling), looked up at ``prim``.
     prim : ndarray of int (m,) or None
-        Lambertian kernel: the triangle each point lies on.
+        The primitive each point lies on (both loops).
+    diffuse : ndarray (3, P + 1) or None
+        General loop: the albedo of every primitive whose material is
+        Lambertian, 0 on the others (their groups overwrite their rows):
+        cosine sampling is written out for every row at once.
     """
 
     k: int
@@ -67,6 +73,7 @@ class Vertex:
     sgn: np.ndarray | None = None
     albedo: np.ndarray | None = None
     prim: np.ndarray | None = None
+    diffuse: np.ndarray | None = None
 
 
 @dataclass
@@ -113,23 +120,56 @@ def sample_directions(vertex: Vertex, stream: SampleStream, *, out=None) -> Dire
 
 
 def _bsdf(vertex: Vertex, stream: SampleStream, out) -> Directions:
-    """BSDF sampling, one ``sample`` call per material slice."""
+    """BSDF sampling: Lambertian materials written out on every row (Malley's
+    method, :meth:`mcvar.bsdf.Lambertian.sample`'s numbers), then one call of
+    each other material's sampler on its own rows (gathered, scattered back)."""
     m = vertex.idx.shape[0]
-    u = stream.vertex(vertex.k, BSDF, 2, vertex.idx)
-    wi_l = np.empty((3, m))
-    weight = np.empty((3, m))
-    pdf = np.empty(m)
-    delta = np.zeros(m, dtype=bool)
+    dt = vertex.wo_local.dtype
+    u = stream.vertex(vertex.k, BSDF, 2, vertex.idx, dt)
     wo_l = vertex.wo_local
-    for mi, a, b in vertex.groups:
-        wi_g, weight_g, pdf_g, delta_g = vertex.materials[mi].sample(wo_l[:, a:b].T, u[:, a:b].T,
-                                                                      return_delta=True)
-        wi_l[:, a:b] = wi_g.T
-        weight[:, a:b] = weight_g.T
-        delta[a:b] = delta_g
+    if vertex.diffuse is not None:
+        # float32 paths: single-precision trigonometry, as the Lambertian kernel
+        x, y, z = _square_to_cosine_hemisphere_unchecked(u[0], u[1], dt.type)
+        ok = wo_l[1] > 0.0
+        ok &= y > 0.0
+        pdf = np.where(ok, y * _INV_PI, 0.0)
+        weight = np.take(vertex.diffuse, vertex.prim, axis=1)
+        weight *= ok
+        wi_l = np.stack([x, y, z])
+    else:
+        wi_l, weight, pdf = np.empty((3, m), dt), np.empty((3, m)), np.empty(m)
+    delta = np.zeros(m, dtype=bool)
+    for mi, rows in vertex.groups:
+        wi_g, weight_g, pdf_g, delta_g = unchecked(vertex.materials[mi], "sample")(
+            unit64(np.take(wo_l, rows, axis=1)), np.take(u, rows, axis=1).T.astype(np.float64))
+        wi_l[:, rows] = wi_g.T
+        weight[:, rows] = weight_g.T
+        delta[rows] = delta_g
         # per sample: a delta lobe's emission gets MIS weight 1 (pdf inf)
-        pdf[a:b] = np.where(delta_g, np.inf, pdf_g)
+        pdf[rows] = np.where(delta_g, np.inf, pdf_g)
     return Directions(_to_world(vertex.frame, wi_l[0], wi_l[1], wi_l[2], out), weight, pdf, delta)
+
+
+def unchecked(material, name: str):
+    """``material``'s ``eval``, ``pdf`` or ``sample`` (with the delta mask) without
+    the argument checks: :class:`mcvar.bsdf.BSDF`'s ``_eval`` ... on arrays the
+    loops built themselves (the checks cost a tenth of a render); any other
+    object's public method."""
+    if isinstance(material, BSDF_BASE):
+        return getattr(material, "_" + name)
+    if name == "sample":
+        return lambda wo, u: material.sample(wo, u, return_delta=True)
+    return getattr(material, name)
+
+
+def unit64(v):
+    """SoA directions (3, m) as float64 rows (m, 3) of unit length: the
+    materials' arithmetic in float64 whatever the loop's precision, and a
+    float32 direction's length error (a few 1e-7 after two frame changes) is
+    not left for the materials' unit-vector checks to trip on."""
+    v = v.T.astype(np.float64)
+    v /= np.sqrt(np.einsum("ij,ij->i", v, v))[:, None]
+    return v
 
 
 def _cosine(vertex: Vertex, stream: SampleStream, out) -> Directions:

@@ -345,11 +345,13 @@ def _plan(scene, method, spp, res, sampler, allocation, keywords: dict):
 
 @dataclass
 class _Streams:
-    """The render's random streams: ``as_rng(rng).spawn(4)``."""
+    """The render's random streams: ``as_rng(rng).spawn(5)`` (the fifth, the caustic
+    light paths', came last: the first four are what ``spawn(4)`` gave)."""
 
     prepare: np.random.Generator
     pattern: np.random.Generator
     stage: tuple
+    caustics: np.random.Generator
 
 
 class _Render:
@@ -360,8 +362,8 @@ class _Render:
 
     def __init__(self, plan: _Plan, allocation, rng):
         self.plan, self.allocation = plan, allocation
-        root = as_rng(rng).spawn(4)
-        self.streams = _Streams(root[0], root[1], (root[2], root[3]))
+        root = as_rng(rng).spawn(5)
+        self.streams = _Streams(root[0], root[1], (root[2], root[3]), root[4])
         self.prepared = plan.method.prepare(plan.scene, plan.options, self.streams.prepare) \
             if plan.method.prepare is not None else None
         self.tracer = Tracer(plan.scene, dtype=plan.run.precision)
@@ -404,14 +406,18 @@ class _Render:
             return self._pool, True
         return None, False
 
-    def stage(self, specs, n_batches: int, stream, sink, *, settings: PathSettings | None = None) -> None:
+    def stage(self, specs, n_batches: int, stream, sink, *, settings: PathSettings | None = None,
+              method: Method | None = None) -> None:
         """Run the batches ``specs`` (an iterator of ``Spec(pixels, spp, whole)``), seeded
-        by child ``i`` of ``stream``; ``sink(spec, result)`` in order, then progress."""
+        by child ``i`` of ``stream``; ``sink(spec, result)`` in order, then progress.
+        ``method``: another method's batches (the caustic light paths; no sample stream)."""
         plan = self.plan
         settings = plan.settings if settings is None else settings
         bitgen = type(stream.bit_generator)
-        batches = (_Batch(plan.method, plan.scene, self.tracer, plan.res, spec.pixels, spec.spp, plan.sampler,
-                          plan.dim, spec.whole, _child(stream, i), bitgen, settings, plan.options, self.prepared)
+        dim = plan.dim if method is None else 0
+        method = plan.method if method is None else method
+        batches = (_Batch(method, plan.scene, self.tracer, plan.res, spec.pixels, spec.spp, plan.sampler,
+                          dim, spec.whole, _child(stream, i), bitgen, settings, plan.options, self.prepared)
                    for i, spec in enumerate(specs))
         executor, parent_works = self._executor(n_batches)
         unit_spp = self.allocation.progress_unit == "spp"
@@ -419,6 +425,8 @@ class _Render:
         with closing(_in_order(batches, executor, parent_works)) as results:
             for batch, result in results:
                 sink(batch, result)
+                if dim == 0 and batch.method is not plan.method:
+                    continue                # an auxiliary stage: not in the progress total
                 step = batch.spp if unit_spp else batch.paths
                 self.done += step
                 if self._bar is not None:

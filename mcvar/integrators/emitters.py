@@ -100,6 +100,8 @@ class Emitters:
         self.radiance_soa = np.ascontiguousarray(scene.light_radiance.T)     # (3, L)
         self.pdf_area = self.select_pdf / self.light_area if self.n_lights else np.zeros(0)
         self.single_quad = self.n_lights == 1 and self.env is None and self.n_points == 0 and self.n_spheres == 0
+        #: one point light and nothing else (``cornell-point``): sampled without the general branch's scatter
+        self.single_point = self.n_points == 1 and self.env is None and self.n_lights == 0 and self.n_spheres == 0
 
     # -- next-event estimation -------------------------------------------------
 
@@ -154,6 +156,8 @@ class Emitters:
         m = p.shape[1]
         if self.single_quad:
             return self._area(p, u, None) + (np.zeros(m, dtype=np.int64),)
+        if self.single_point:
+            return self._point(p)
         k = self.choose(u_sel, m)
         w = np.zeros((3, m))
         w[1] = 1.0
@@ -187,6 +191,17 @@ class Emitters:
             le[:, sel] = self.env.radiance(w_env).T
             pdf[sel] = self.select_pdf * pdf_env
         return w, dist, le, pdf, np.where(on_light, k, np.where(on_point, -2, np.where(on_sphere, -3, -1)))
+
+    def _point(self, p):
+        """The one point light seen from every ``p`` (SoA): the general branch's
+        numbers, written for the whole wavefront at once."""
+        m = p.shape[1]
+        v = self.scene.point_light_position[0][:, None] - p
+        d2 = _dot(v, v)
+        r = np.sqrt(d2)
+        w = v / np.maximum(r, 1e-300)
+        le = self.scene.point_light_intensity[0][:, None] / np.maximum(d2, 1e-300)
+        return w, r, le, np.full(m, self.select_pdf), np.full(m, -2, dtype=np.int64)
 
     def _sphere(self, p, u, j):
         """Sphere lights ``j`` sampled by the cone they subtend from ``p`` (SoA):

@@ -25,8 +25,10 @@ Depth convention (CORNELL.md): a path of ``k`` segments has depth ``k``;
 illumination, ``3`` one indirect bounce, and so on. The ``direct*``
 methods are depth 2.
 
-Two loops run these estimators: the general one here (any material, sorted
-by material each bounce, BSDF method calls) and the Lambertian kernel of
+Two loops run these estimators: the general one here (any material; rays in
+path order, Lambertian materials written out on every row and the other
+BSDFs called unchecked on their own rows; rays in the tracer's precision,
+throughputs in float64) and the Lambertian kernel of
 :mod:`mcvar.integrators.lambertian` (the same estimator written out for
 scenes of Lambertian triangles and one quad light). The option
 ``kernel='auto'`` picks the Lambertian kernel where the scene allows it;
@@ -41,7 +43,8 @@ import numpy as np
 
 from .._validation import as_rng
 from ..tracer import Tracer
-from .directions import Vertex, sample_directions
+from ..warps import _INV_PI
+from .directions import Vertex, sample_directions, unchecked, unit64
 from .emitters import Emitters, VisibleLights
 from .film import BatchJob, BatchResult, camera_result
 from .lambertian import trace_lambertian
@@ -185,10 +188,17 @@ def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings):
 
 
 def _trace_general(tr: Transport, o, d) -> None:
-    """The general wavefront loop (any material); see :func:`trace_paths`."""
+    """The general wavefront loop (any material); see :func:`trace_paths`.
+
+    The rows stay in path order: Lambertian materials are written out on
+    every row at once (their albedo is a per-primitive table, 0 on other
+    materials' primitives), and each other material's BSDF is called on its
+    own rows (index arrays), so the path state is never sorted.
+    """
     tracer, tables, stream = tr.tracer, tr.tables, tr.stream
     materials = tables.materials
-    state = PathState(o, d)
+    dt = tables.dtype
+    state = PathState(o, d, dtype=dt, weight_dtype=np.float64)
     k = 0
     while state.n and k < tr.limit:
         k += 1
@@ -197,27 +207,25 @@ def _trace_general(tr: Transport, o, d) -> None:
         tr.rays += n
         if k == 1 and tr.visible:
             tr.camera_hits(state, t, prim)
-        mat = np.take(tables.mat_code, prim)
-        # -- rays that left the scene: environment emission
-        if tr.emitters.env is not None:
-            tr.miss_emission(k, state, np.flatnonzero(prim < 0))
-        # -- sort the hits by material (misses last) and drop the misses
-        order = np.argsort(mat, kind="stable")
-        counts = np.bincount(mat, minlength=tables.n_mat + 1)
-        m = n - int(counts[-1])
-        if m == 0:
-            break
-        order = order[:m]
-        state.take(order)
-        t, prim, mat = np.take(t, order), np.take(prim, order), np.take(mat, order)
-        ends = np.cumsum(counts[:-1])
-        groups = [(mi, int(ends[mi] - counts[mi]), int(ends[mi])) for mi in range(tables.n_mat) if counts[mi]]
+        # -- rays that left the scene: environment emission, then dropped
+        if prim.min() < 0:
+            if tr.emitters.env is not None:
+                tr.miss_emission(k, state, np.flatnonzero(prim < 0))
+            keep = np.flatnonzero(prim >= 0)
+            if keep.size == 0:
+                break
+            state.take(keep)
+            t, prim = np.take(t, keep), np.take(prim, keep)
+        m = state.n
+        t = t.astype(dt, copy=False)
         p = state.d * t
         p += state.o
         # -- emission at the hit
         tr.hit_emission(k, state, p, prim)
         if k >= tr.limit:
             break
+        mat = np.take(tables.mat_code, prim)
+        groups = tables.groups(mat)
         # -- shading frame: flip two-sided materials' normal towards wo
         ng = tables.geometric_normals(tracer, prim, p)
         wo = -state.d
@@ -225,8 +233,10 @@ def _trace_general(tr: Transport, o, d) -> None:
         frame = tables.frames(prim, ng, flip)
         fs, fn, ft = frame
         wo_l = np.stack([dot(wo, fs), dot(wo, fn), dot(wo, ft)])
+        del wo
         # -- next-event estimation (adds paths of k + 1 segments)
-        vertex = Vertex(k, state.idx, frame, wo_local=wo_l, groups=groups, materials=materials)
+        vertex = Vertex(k, state.idx, frame, wo_local=wo_l, groups=groups, materials=materials, prim=prim,
+                        diffuse=tables.diffuse_albedo if tables.any_diffuse else None)
         if tr.nee and k + 1 <= tr.limit:
             _next_event(tr, state, vertex, p, ng, prim)
         # -- continue the path by BSDF sampling? (without bsdf_hits only
@@ -235,6 +245,10 @@ def _trace_general(tr: Transport, o, d) -> None:
         if k + 1 > tr.limit or (last and not (tables.any_delta or tables.hidden_emitters)):
             break
         dirs = sample_directions(vertex, stream)
+        if tr.caustic_light:
+            # the caustic prefix: vertex 1 non-specular, every later one specular
+            spec = np.take(tables.all_delta, mat)
+            state.tag = ~spec if k == 1 else state.tag & spec
         state.beta[...] *= dirs.weight
         wi, pdf = dirs.wi, dirs.pdf
         del dirs                           # free the weights now (allocator reuse)
@@ -253,46 +267,61 @@ def _trace_general(tr: Transport, o, d) -> None:
 def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) -> None:
     """Connect every shading point to an emitter; add the unoccluded contributions.
 
-    SoA arrays (3, m), rows sorted by material (``vertex.groups``: material, start, end).
+    SoA arrays (3, m) in path order; Lambertian materials written out on all
+    rows, the others evaluated on their rows (``vertex.groups``: material, rows).
     """
-    m = p.shape[1]
     idx = state.idx
-    k, groups, frame, wo_l = vertex.k, vertex.groups, vertex.frame, vertex.wo_local
-    u = tr.stream.vertex(k, LIGHT, 2, idx)
+    k, frame, wo_l = vertex.k, vertex.frame, vertex.wo_local
+    tables = tr.tables
+    u = tr.stream.vertex(k, LIGHT, 2, idx, p.dtype)
     u_sel = tr.stream.vertex(k, LIGHT_SELECT, 1, idx)[0] if tr.emitters.n_emitters > 1 else None
     w, dist, le, pdf_l, light = tr.emitters.sample_li(p, u, u_sel)
     fs, fn, ft = frame
     wi_l = np.stack([dot(w, fs), dot(w, fn), dot(w, ft)])
-    f = np.zeros((3, m))
-    pdf_b = np.zeros(m)
-    materials = tr.tables.materials
-    for mi, a, b in groups:
-        if tr.tables.all_delta[mi]:
-            continue
-        wo_g, wi_g = wo_l[:, a:b].T, wi_l[:, a:b].T
-        f[:, a:b] = materials[mi].eval(wo_g, wi_g).T
+    # Lambertian rows: f = albedo / pi and p = cos / pi, both where wo and wi lie above
+    ok = wo_l[1] > 0.0
+    ok &= wi_l[1] > 0.0
+    f = np.take(tables.diffuse_f, prim, axis=1)
+    f *= ok
+    if tr.mis:
+        ok &= np.take(tables.diffuse, prim)
+        pdf_b = np.where(ok, wi_l[1] * _INV_PI, 0.0)
+    materials = tables.materials
+    for mi, rows in vertex.groups:
+        if tables.all_delta[mi]:
+            continue                       # f = 0 and p = 0 there already (no diffuse albedo)
+        wo_g, wi_g = unit64(np.take(wo_l, rows, axis=1)), unit64(np.take(wi_l, rows, axis=1))
+        f[:, rows] = unchecked(materials[mi], "eval")(wo_g, wi_g).T
         if tr.mis:
-            pdf_b[a:b] = materials[mi].pdf(wo_g, wi_g)
+            pdf_b[rows] = unchecked(materials[mi], "pdf")(wo_g, wi_g)
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.abs(wi_l[1]) / np.where(pdf_l > 0, pdf_l, np.inf)
-    if tr.mis:
-        if tr.emitters.n_points:
-            pdf_b[light == -2] = 0.0        # a point light: BSDF sampling cannot hit it, weight 1
-        scale *= tr.weight_fn(pdf_l, pdf_b)
     contrib = state.beta * f
     contrib *= le
     contrib *= scale
     go = np.flatnonzero(contrib.max(axis=0) > 0.0)
     if go.size == 0:
         return
+    contrib = np.take(contrib, go, axis=1)
+    if tr.mis:
+        pb = np.take(pdf_b, go)
+        if tr.emitters.n_points:
+            pb[np.take(light, go) == -2] = 0.0   # a point light: BSDF sampling cannot hit it, weight 1
+        # the heuristic written out: NEE's density is positive and finite on ``go``,
+        # BSDF densities (non-delta parts) are finite
+        r = pb / np.take(pdf_l, go)
+        if tr.settings.heuristic == "power":
+            r *= r
+        r += 1.0
+        contrib /= r
     ngo = np.take(ng, go, 1)
     wgo = np.take(w, go, 1)
     side = np.sign(dot(wgo, ngo))
     origin, d_shadow, tmax = shadow_rays(np.take(p, go, 1), ngo, side, wgo, np.take(dist, go), tr.eps)
     keys = tr.tracer.shadow_keys(np.take(prim, go), side, np.take(light, go))
     blocked = tr.tracer.occluded_soa(origin, d_shadow, tmax, keys)
-    vis = go[~blocked]
-    tr.add(np.take(idx, vis), np.take(contrib, vis, 1))
+    vis = np.flatnonzero(~blocked)
+    tr.add(np.take(idx, np.take(go, vis)), np.take(contrib, vis, 1))
     tr.rays += int(go.size)
 
 

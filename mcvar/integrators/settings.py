@@ -70,6 +70,10 @@ class PathSettings:
         ``exact``: the emission of lights seen directly by camera rays is the
         closed-form image of :class:`~mcvar.integrators.emitters.VisibleLights`
         plus sampled differences (a control variate).
+    caustics : {'path', 'light'}
+        ``light``: caustic paths ``E D S+ L`` are left to light tracing
+        (:mod:`mcvar.integrators.caustics`; renders add its splats), where
+        the scene allows it; ``path``: path tracing finds them.
 
     Examples
     --------
@@ -86,6 +90,7 @@ class PathSettings:
     rr_depth: int | None = None
     rr_threshold: float = 1.0
     visible_lights: Literal["sampled", "exact"] = "sampled"
+    caustics: Literal["path", "light"] = "path"
 
     def __post_init__(self):
         checked = {
@@ -96,6 +101,7 @@ class PathSettings:
             "rr_depth": _optional_count(self.rr_depth, "rr_depth"),
             "rr_threshold": _number_in_unit_interval(self.rr_threshold, "rr_threshold"),
             "visible_lights": check_choice(self.visible_lights, "visible_lights", VISIBLE_LIGHTS),
+            "caustics": check_choice(self.caustics, "caustics", ("path", "light")),
         }
         for key, value in checked.items():          # normalised: Python ints and floats
             object.__setattr__(self, key, value)
@@ -121,7 +127,7 @@ class PathSettings:
 
 #: The fields of :class:`PathSettings` a method declares in its ``options``
 #: when it reads them (``max_depth`` and ``heuristic`` apply to every method).
-PATH_OPTIONS = ("kernel", "light_sampling", "rr_depth", "rr_threshold", "visible_lights")
+PATH_OPTIONS = ("kernel", "light_sampling", "rr_depth", "rr_threshold", "visible_lights", "caustics")
 
 
 @dataclass(frozen=True)

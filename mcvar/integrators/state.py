@@ -4,7 +4,8 @@
   block (origin, direction, throughput ``beta``, the previous bounce's pdf)
   plus the paths' indices, so that compaction is one ``np.take``.
 * :class:`SceneTables`: per-scene constants of the shading loop (material
-  codes for the sort, shading frames of triangles, which materials flip).
+  codes, Lambertian albedo per primitive, shading frames of triangles, which
+  materials flip).
 * :class:`Transport`: one trace's strategies and
   :class:`~mcvar.integrators.settings.PathSettings`, and its radiance accumulator; adds emission found
   by rays with its MIS weight.
@@ -20,7 +21,7 @@ from .emitters import Emitters, VisibleLights
 from .settings import HEURISTICS, PathSettings, Strategies
 from .stream import ROULETTE, SampleStream
 
-__all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot",
+__all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot", "light_caustics_apply",
            "RR_START_DEPTH", "RR_MAX_DEPTH"]
 
 #: Russian roulette starts once a path has this many segments.
@@ -39,30 +40,38 @@ def dot(a, b):
 class PathState:
     """The live paths of a wavefront, structure-of-arrays.
 
-    One ``(10, n)`` block holds per path: origin (rows 0-2), direction
-    (3-5), throughput ``beta`` (6-8) and the solid-angle pdf of the bounce
-    that made the current ray (9; ``inf`` for a camera ray or a delta bounce,
-    whose emission gets MIS weight 1); ``idx`` is each path's row in the
-    output. Compaction (:meth:`take`) is one ``np.take`` of the block.
+    Two blocks hold per path: the ray, origin (rows 0-2) and direction
+    (3-5) of :attr:`geo`, and in :attr:`weights` the throughput ``beta``
+    (rows 0-2) and the solid-angle pdf of the bounce that made the current
+    ray (3; ``inf`` for a camera ray or a delta bounce, whose emission gets
+    MIS weight 1); ``idx`` is each path's row in the output. Compaction
+    (:meth:`take`) is one ``np.take`` per block.
 
     Parameters
     ----------
     origins, directions : array_like, shape (3, n)
     dtype : numpy dtype
-        float64 for the general loop; the Lambertian loop keeps the block in
-        the ray geometry's precision (radiance is accumulated in float64).
+        Precision of the rays: the tracer's (float32 by default).
+    weight_dtype : numpy dtype, optional
+        Precision of ``beta`` and the pdf (default ``dtype``): the general
+        loop keeps them in float64, so that a throughput is the exact product
+        of its BSDF weights (the furnace's geometric sums); the Lambertian
+        kernel keeps everything in float32 (radiance is accumulated in float64).
     """
 
-    __slots__ = ("data", "idx")
+    __slots__ = ("geo", "weights", "idx", "tag")
 
-    def __init__(self, origins, directions, dtype=np.float64):
+    def __init__(self, origins, directions, dtype=np.float64, weight_dtype=None):
         n = np.shape(origins)[1]
-        self.data = np.empty((10, n), dtype=dtype)
-        self.data[0:3] = origins
-        self.data[3:6] = directions
-        self.data[6:9] = 1.0
-        self.data[9] = np.inf
+        self.geo = np.empty((6, n), dtype=dtype)
+        self.geo[0:3] = origins
+        self.geo[3:6] = directions
+        self.weights = np.empty((4, n), dtype=dtype if weight_dtype is None else weight_dtype)
+        self.weights[0:3] = 1.0
+        self.weights[3] = np.inf
         self.idx = np.arange(n)
+        #: optional per-path flags kept through compaction (the caustic prefix)
+        self.tag = None
 
     @property
     def n(self) -> int:
@@ -70,24 +79,27 @@ class PathState:
 
     @property
     def o(self):
-        return self.data[0:3]
+        return self.geo[0:3]
 
     @property
     def d(self):
-        return self.data[3:6]
+        return self.geo[3:6]
 
     @property
     def beta(self):
-        return self.data[6:9]
+        return self.weights[0:3]
 
     @property
     def prev_pdf(self):
-        return self.data[9]
+        return self.weights[3]
 
     def take(self, rows) -> None:
         """Keep (and reorder to) the paths at positions ``rows``."""
-        self.data = np.take(self.data, rows, axis=1)
+        self.geo = np.take(self.geo, rows, axis=1)
+        self.weights = np.take(self.weights, rows, axis=1)
         self.idx = np.take(self.idx, rows)
+        if self.tag is not None:
+            self.tag = np.take(self.tag, rows)
 
 
 def _flips(material) -> bool:
@@ -100,9 +112,10 @@ def _flips(material) -> bool:
 class SceneTables:
     """Per-scene constants of the shading loop (built once per trace).
 
-    Materials are dispatched on contiguous slices: the rays are sorted by
-    material once per bounce (a stable sort of small integer codes), so
-    every material is called once per bounce on a slice. Triangles have
+    The rays stay in path order (no sort): Lambertian materials are a
+    per-primitive albedo table (0 on other materials' primitives) applied to
+    every row at once, and every other material is called once per bounce on
+    its own rows (:meth:`groups`, index arrays). Triangles have
     constant normals: their shading frames, for both orientations, are a
     table indexed by ``2 prim + flipped``.
 
@@ -135,13 +148,51 @@ class SceneTables:
                              for m in scene.materials)
         self.n_tri = scene.n_triangles
         self.spheres = scene.n_spheres > 0
-        if not self.spheres and self.n_tri:
+        # Lambertian materials written out (every row of a bounce at once, no
+        # method call): albedo and f = albedo / pi per primitive, 0 on the
+        # primitives of other materials, whose rows their own BSDF overwrites
+        lamb = np.array([type(m) is Lambertian for m in scene.materials], dtype=bool)
+        #: materials called through their BSDF methods, on their rows (index arrays)
+        self.others = tuple(int(mi) for mi in np.flatnonzero(~lamb))
+        prim_mat = np.asarray(scene.prim_material, dtype=np.int64)
+        albedo = np.zeros((3, n_prim + 1))
+        f_diffuse = np.zeros((3, n_prim + 1))
+        for mi in np.flatnonzero(lamb):
+            rows = np.flatnonzero(prim_mat == mi)
+            albedo[:, rows] = scene.materials[mi].albedo[:, None]
+            f_diffuse[:, rows] = (scene.materials[mi].albedo / np.pi)[:, None]
+        #: precision of the general loop's path state: the tracer's ray geometry
+        self.dtype = dt = np.dtype(tracer.dtype)
+        self.diffuse_albedo = albedo                # float64: the throughput's factors stay exact
+        #: some material is Lambertian (its sampling written out)
+        self.any_diffuse = bool(lamb.any())
+        self.diffuse_f = f_diffuse
+        #: per primitive (and a last entry for a miss): its material is Lambertian
+        self.diffuse = np.append(lamb[prim_mat], False) if n_prim else np.zeros(1, dtype=bool)
+        self.sphere_center_soa = np.ascontiguousarray(scene.sphere_centers.T)
+        self.sphere_radius = np.asarray(scene.sphere_radii, dtype=np.float64)
+        if self.n_tri:
             nrm = tracer.triangle_normal
             both = np.stack([nrm, -nrm], axis=1).reshape(-1, 3)
             fr = Frame(both)
-            self.frame_s = np.ascontiguousarray(fr.s.T)
-            self.frame_n = np.ascontiguousarray(fr.n.T)
-            self.frame_t = np.ascontiguousarray(fr.t.T)
+            # sphere columns (2 per sphere) are placeholders: their frames are computed per hit
+            pad = np.zeros((3, 2 * scene.n_spheres))
+            self.frame_s = np.ascontiguousarray(np.concatenate([fr.s.T, pad], axis=1), dtype=dt)
+            self.frame_n = np.ascontiguousarray(np.concatenate([fr.n.T, pad], axis=1), dtype=dt)
+            self.frame_t = np.ascontiguousarray(np.concatenate([fr.t.T, pad], axis=1), dtype=dt)
+            self.normal_soa = np.ascontiguousarray(np.concatenate([tracer.triangle_normal_soa,
+                                                                   pad[:, :scene.n_spheres]], axis=1), dtype=dt)
+        #: one quad light of constant radiance, one-sided, and no other emitter:
+        #: emission found by rays written out (:meth:`Transport.hit_emission`)
+        self.quad_emission = None
+        if emitters.single_quad and not self.hidden_emitters and scene.checker_period is None:
+            em_prims = np.flatnonzero(self.emits[:-1])
+            if (not np.any(scene.prim_two_sided_emission[em_prims])
+                    and np.all(scene.prim_emission[em_prims] == scene.light_radiance[0])):
+                self.quad_emission = (scene.light_radiance[0].astype(np.float64),
+                                      [float(c) for c in scene.light_normal[0]], float(emitters.pdf_area[0]))
+        #: ``caustics='light'`` applies (:func:`~mcvar.integrators.caustics.light_caustics_apply`)
+        self.light_caustics = self.quad_emission is not None and light_caustics_apply(scene)
         self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
                            and not self.hidden_emitters
                            and all(type(m) is Lambertian for m in scene.materials))
@@ -160,20 +211,62 @@ class SceneTables:
             return f"Lambertian materials only (not {', '.join(bad)})"
         return None
 
+    def groups(self, mat):
+        """``[(material, rows)]`` of the rows (codes ``mat``) whose material is not
+        Lambertian, each material's rows an index array in path order."""
+        if not self.others:
+            return []
+        if len(self.others) == 1:
+            rows = np.flatnonzero(mat == self.others[0])
+            return [(self.others[0], rows)] if rows.size else []
+        counts = np.bincount(mat, minlength=self.n_mat + 1)
+        return [(mi, np.flatnonzero(mat == mi)) for mi in self.others if counts[mi]]
+
     def geometric_normals(self, tracer, prim, p):
-        """Unit geometric normals (3, m) of primitives ``prim`` at SoA points ``p``."""
+        """Unit geometric normals (3, m) of primitives ``prim`` at SoA points ``p``
+        (spheres: outward, ``(p - c) / r``)."""
         if not self.spheres:
-            return np.take(tracer.triangle_normal_soa, prim, axis=1)
-        return np.ascontiguousarray(tracer.normals(prim, p.T).T)
+            return np.take(self.normal_soa, prim, axis=1)
+        if not self.n_tri:
+            ng = np.empty((3, prim.shape[0]), dtype=self.dtype)
+            on = np.arange(prim.shape[0])
+        else:
+            ng = np.take(self.normal_soa, prim, axis=1)
+            on = np.flatnonzero(prim >= self.n_tri)
+        if on.size:
+            j = np.take(prim, on) - self.n_tri
+            v = np.take(p, on, axis=1) - np.take(self.sphere_center_soa, j, axis=1)
+            v /= np.take(self.sphere_radius, j)
+            ng[:, on] = v
+        return ng
 
     def frames(self, prim, ng, flip):
-        """Shading frames ``(s, n, t)``, SoA (3, m) each, normal flipped where ``flip``."""
-        if not self.spheres:
+        """Shading frames ``(s, n, t)``, SoA (3, m) each, normal flipped where ``flip``:
+        the triangles' from the table, the spheres' built per hit (Duff et al.
+        2017's basis, as :class:`mcvar.geometry.Frame`)."""
+        if self.n_tri:
             key = 2 * prim + flip
-            return (np.take(self.frame_s, key, axis=1), np.take(self.frame_n, key, axis=1),
-                    np.take(self.frame_t, key, axis=1))
-        fr = Frame(np.where(flip, -ng, ng).T)
-        return fr.s.T, fr.n.T, fr.t.T
+            fs, fn, ft = (np.take(self.frame_s, key, axis=1), np.take(self.frame_n, key, axis=1),
+                          np.take(self.frame_t, key, axis=1))
+            if not self.spheres:
+                return fs, fn, ft
+            on = np.flatnonzero(prim >= self.n_tri)
+        else:
+            m = prim.shape[0]
+            fs, fn, ft = (np.empty((3, m), dtype=self.dtype) for _ in range(3))
+            on = np.arange(m)
+        if on.size:
+            n = np.take(ng, on, axis=1)
+            n = np.where(np.take(flip, on), -n, n)
+            n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+            x, y, z = n
+            sign = np.copysign(1.0, y)
+            a = -1.0 / (sign + y)
+            b = z * x * a
+            fs[:, on] = (sign + x * x * a, -x, b)
+            fn[:, on] = n
+            ft[:, on] = (sign * b, -sign * z, 1.0 + sign * z * z * a)
+        return fs, fn, ft
 
 
 class Transport:
@@ -219,6 +312,10 @@ class Transport:
         #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
         #: by camera rays is left to the caller's exact image (None: sampled)
         self.visible = VisibleLights(scene) if settings.visible_lights == "exact" else None
+        #: caustic paths ``E D S+ L`` are light tracing's (:mod:`~mcvar.integrators.caustics`):
+        #: their emission is left out here
+        self.caustic_light = (settings.caustics == "light" and tables.light_caustics and self.bsdf_hits
+                              and self.limit >= 3)
 
     def add(self, rows, value) -> None:
         """``radiance[:, rows] += value`` for distinct ``rows``, one channel at a
@@ -269,6 +366,9 @@ class Transport:
         lit = np.flatnonzero(np.take(emits, prim))
         if not lit.size:
             return
+        if self.tables.quad_emission is not None:
+            self._quad_emission(k, state, p, lit)
+            return
         pl, dl, ol = p[:, lit].T, state.d[:, lit].T, state.o[:, lit].T
         pl, dl, ol = (np.asarray(a, dtype=np.float64) for a in (pl, dl, ol))
         pr = prim[lit]
@@ -277,15 +377,74 @@ class Transport:
                                  lambda: self.emitters.pdf_li(pr, ol, pl))
         self.add(state.idx[lit], state.beta[:, lit] * le.T * w)
 
+    def _quad_emission(self, k, state: PathState, p, lit) -> None:
+        """:meth:`hit_emission` written out for the one quad light of
+        :attr:`SceneTables.quad_emission`: ``beta Le w`` on its front, ``w``
+        from :meth:`emission_weight`'s rules with NEE's density ``p_A r^2 /
+        cos_l`` (no emitter NEE cannot sample in such scenes)."""
+        le, n, pdf_area = self.tables.quad_emission
+        d = np.take(state.d, lit, axis=1)
+        cos_l = d[0] * -n[0]
+        cos_l -= d[1] * n[1]
+        cos_l -= d[2] * n[2]
+        front = cos_l > 0.0
+        if not front.all():
+            lit, cos_l = lit[front], cos_l[front]
+            if not lit.size:
+                return
+        if self.caustic_light and k >= 3:
+            keep = ~np.take(state.tag, lit)           # E D S+ L: the light tracer's
+            lit, cos_l = lit[keep], cos_l[keep]
+            if not lit.size:
+                return
+        val = np.take(state.beta, lit, axis=1) * le[:, None]
+        if k > 1:
+            prev = np.take(state.prev_pdf, lit)
+            delta = np.isinf(prev)
+            if not self.bsdf_hits:
+                val *= delta                # light sampling counted the rest
+            elif self.nee and self.mis:
+                v = np.take(p, lit, axis=1) - np.take(state.o, lit, axis=1)
+                r = dot(v, v)
+                r *= pdf_area
+                r /= cos_l                  # NEE's density of this point
+                r /= np.where(delta, 1.0, prev)
+                if self.settings.heuristic == "power":
+                    r *= r
+                r += 1.0
+                val /= np.where(delta, 1.0, r)
+        self.add(np.take(state.idx, lit), val)
+
     def miss_emission(self, k, state: PathState, miss) -> None:
         """Add the environment's radiance along the rays ``miss`` that left the scene."""
         if self.emitters.env is None or not miss.size:
             return
         dm = np.asarray(state.d[:, miss].T, dtype=np.float64)
+        if state.d.dtype != np.float64:        # float32 rays: unit length in float64 for the map's checks
+            dm /= np.sqrt(np.einsum("ij,ij->i", dm, dm))[:, None]
         le = self.emitters.env.radiance(dm)
         w = self.emission_weight(k, np.asarray(state.prev_pdf[miss], dtype=np.float64),
                                  lambda: self.emitters.environment_pdf(dm))
         self.add(state.idx[miss], state.beta[:, miss] * le.T * w)
+
+
+def light_caustics_apply(scene) -> bool:
+    """Whether ``caustics='light'`` changes anything on ``scene``: one quad light of
+    constant one-sided radiance and nothing else emitting, every material purely
+    specular or without a specular lobe, and some of each (:mod:`mcvar.integrators.caustics`)."""
+    em = Emitters(scene)
+    if not em.single_quad or scene.checker_period is not None:
+        return False
+    emits = np.any(scene.prim_emission > 0, axis=1)
+    if np.any(emits & (scene.prim_light < 0)) or np.any(scene.prim_two_sided_emission[emits]):
+        return False
+    if not np.all(scene.prim_emission[emits] == scene.light_radiance[0]):
+        return False
+    delta = [bool(getattr(m, "is_delta", False)) for m in scene.materials]
+    mixed = [bool(getattr(m, "has_delta", False)) and not d for m, d in zip(scene.materials, delta)]
+    used = np.unique(scene.prim_material)
+    return (not any(mixed[i] for i in used) and any(delta[i] for i in used)
+            and not all(delta[i] for i in used))
 
 
 def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
@@ -305,7 +464,7 @@ def roulette(tr: Transport, state: PathState, k: int, alive) -> np.ndarray:
     alive &= bmax > 0.0
     if tr.roulette and k >= tr.rr_start:
         q = np.minimum(bmax / tr.rr_threshold if tr.rr_threshold != 1.0 else bmax, 0.95)
-        u = tr.stream.vertex(k, ROULETTE, 1, state.idx, state.data.dtype)[0]
+        u = tr.stream.vertex(k, ROULETTE, 1, state.idx, state.weights.dtype)[0]
         survive = u < q
         beta /= np.where(survive, q, 1.0)
         alive &= survive
