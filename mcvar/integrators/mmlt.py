@@ -198,6 +198,8 @@ def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
         if tv >= 2:
             rows, C = cams[tv]
             Cg = _Subset(C, np.searchsorted(rows, grp))
+        if (Lg is not None and not np.any(Lg.length >= sv)) or (Cg is not None and not np.any(Cg.length >= tv)):
+            continue                                  # no path of the group has the vertices
         if tv == 1:
             k, pix, value, weight = _connect_camera(ctx, Lg, sv, _mis_weight)
             rays += k.size
