@@ -31,12 +31,14 @@ def test_state_layout_holds_three_streams():
         (slice(2, 10), slice(10, 14), slice(14, 20), 20, 21)
 
 
-def test_stratified_bootstrap_states_are_uniform_with_one_per_pixel():
-    x = stratified_states(64, 5, (8, 8), np.random.default_rng(1))
+def test_stratified_bootstrap_states_are_uniform_with_two_per_pixel():
+    x = stratified_states(128, 5, (8, 8), np.random.default_rng(1))
     pix = (x[:, 1] * 8).astype(int) * 8 + (x[:, 0] * 8).astype(int)
-    assert sorted(pix) == list(range(64))                                  # every pixel once
-    for c in range(2, 5):                                                  # Latin hypercube columns
-        assert sorted((x[:, c] * 64).astype(int)) == list(range(64))
+    assert sorted(pix) == sorted(list(range(64)) * 2)                     # every pixel twice
+    for c in range(2, 4):                                                  # Latin hypercube columns
+        assert sorted((x[:, c] * 128).astype(int)) == list(range(128))
+    for p in range(64):                                                    # strategy: both halves per pixel
+        assert sorted((x[pix == p, 4] * 2).astype(int)) == [0, 1]
 
 
 def test_mmlt_is_unbiased_against_bdpt_per_block(cornell):
@@ -134,7 +136,7 @@ def test_lockstep_mutation_keeps_its_target_invariant(sigma, p_large):
 
 def test_workers_two_give_the_image_of_one():
     scene = load_scene("cornell-door")
-    kw = dict(method="mmlt", spp=4, res=8, rng=2205, batch_spp=2, max_depth=4, chains=64)
+    kw = dict(method="mmlt", spp=4, res=8, rng=2205, batch_spp=2, max_depth=4, chains=64, n_bootstrap=4096)
     a = render(scene, workers=1, **kw)
     b = render(scene, workers=2, **kw)
     np.testing.assert_array_equal(a.image, b.image)

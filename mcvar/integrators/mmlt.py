@@ -54,7 +54,7 @@ import numpy as np
 
 from .._validation import as_rng, check_bool, check_count, check_positive, check_probability, settings_with
 from ..envmap import LUMINANCE_WEIGHTS
-from ..mcmc import _mutate, check_walk_budget, integrated_time
+from ..mcmc import check_walk_budget, integrated_time
 from ..scene import Scene
 from ..tracer import Tracer
 from .bdpt import _connect_emitter, _connect_inner, _mis_weight
@@ -77,6 +77,9 @@ OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, 
 #: is 6 segments; 5 segments carry the cornell-door's light through the slit
 #: and two bounces in the room).
 DEFAULT_MAX_DEPTH = 5
+
+#: Fewest bootstrap states per depth by default (a small render still finds lit paths).
+MIN_BOOTSTRAP = 1024
 
 #: Steps per chain below which no autocorrelation time is reported (NaN):
 #: Sokal's window needs chains longer than a few ``tau``.
@@ -217,16 +220,37 @@ def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
     return f, pixel, rgb, rays
 
 
+def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
+    """Kelemen's mutation of every chain: ``(y, large)``.
+
+    A small step ``y = x + N(0, sigma^2 I)`` wrapped on the torus ``[0, 1)^dim``,
+    or, for the chains of ``large`` (each with probability ``p_large``), a
+    uniform state. Both are symmetric (``T(x -> y) = T(y -> x)``), so is the
+    mixture. A large step's value ``f(y)`` is an iid sample of ``f`` under
+    the uniform density: MMLT adds it to the bootstrap's estimate of ``b``
+    (Kelemen et al. 2002, section 4).
+    """
+    y = x + rng.normal(0.0, sigma, size=x.shape)
+    y -= np.floor(y)
+    large = rng.random(x.shape[0]) < p_large if p_large > 0.0 else np.zeros(x.shape[0], dtype=bool)
+    k = int(large.sum())
+    if k:
+        y[large] = rng.random((k, x.shape[1]))
+    np.minimum(y, np.nextafter(1.0, 0.0), out=y)   # floor(y) may round 1 - 1e-17 up to 1
+    return y, large
+
+
 def lockstep(evaluate, x, fx, payload, n_steps: int, sigma: float, p_large: float, rng, visit=None):
     """Metropolis-Hastings for all chains at once: ``n_steps`` steps of Kelemen's mutation.
 
-    Every chain proposes (:func:`mcvar.mcmc._mutate`: a Gaussian step of size
+    Every chain proposes (:func:`kelemen_mutate`: a Gaussian step of size
     ``sigma`` wrapped on the torus, or with probability ``p_large`` a uniform
     state), ``evaluate(y) -> (f, payload)`` traces all proposals together,
     and every chain accepts with ``a = min(1, f(y) / f(x))`` at once (the
     proposal is symmetric, so ``f`` is invariant: detailed balance).
-    ``visit(px, py, a)`` sees each step's current and proposed payloads and
-    the acceptance probabilities (for expected-value splatting). Returns the
+    ``visit(px, py, a, fy, large)`` sees each step's current and proposed
+    payloads, the acceptance probabilities (for expected-value splatting),
+    the proposals' values and which were large steps. Returns the
     final states, their values, the values after every step ``(n_steps,
     chains)`` (for the autocorrelation time) and each chain's number of accepted moves.
     """
@@ -234,13 +258,13 @@ def lockstep(evaluate, x, fx, payload, n_steps: int, sigma: float, p_large: floa
     values = np.empty((n_steps, chains))
     n_acc = np.zeros(chains, dtype=np.int64)
     for step in range(n_steps):
-        y = _mutate(x, sigma, p_large, rng)
+        y, large = kelemen_mutate(x, sigma, p_large, rng)
         fy, py = evaluate(y)
         with np.errstate(divide="ignore", invalid="ignore"):
             a = np.where(fx > 0.0, np.minimum(1.0, fy / fx), 1.0)
         acc = rng.random(chains) < a
         if visit is not None:
-            visit(payload, py, a)
+            visit(payload, py, a, fy, large)
         x = np.where(acc[:, None], y, x)
         fx = np.where(acc, fy, fx)
         payload = tuple(np.where(acc.reshape((-1,) + (1,) * (p.ndim - 1)), q, p) for p, q in zip(payload, py))
@@ -309,7 +333,9 @@ def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
 
     The film position (columns 0, 1) is jittered per pixel (state ``i`` in
     pixel ``perm(i mod n_pix)``), every other column is a Latin hypercube
-    column (``(perm + U) / n``). Each state is marginally uniform, so
+    column (``(perm + U) / n``) but the last (MMLT's strategy number), which
+    is stratified inside each pixel (a pixel's ``k`` states spread over
+    ``k`` strata in random order: its strategies evenly). Each state is marginally uniform, so
     ``mean f`` stays an unbiased estimate of ``b`` and resampling ``∝ f``
     still starts the chains near ``f / b``; the variance of ``b`` from
     *which pixel* a state lands in is gone (on the door scene the slit's
@@ -319,11 +345,15 @@ def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
     width, height = res
     n_pix = width * height
     x = np.empty((n, dim))
-    pix = rng.permutation(n_pix)[np.arange(n) % n_pix]
+    i = np.arange(n)
+    pix = rng.permutation(n_pix)[i % n_pix]
     x[:, 0] = (pix % width + rng.random(n)) / width
     x[:, 1] = (pix // width + rng.random(n)) / height
-    for c in range(2, dim):
+    for c in range(2, dim - 1):
         x[:, c] = (rng.permutation(n) + rng.random(n)) / n
+    rounds = -(-n // n_pix)                       # the last column: stratified inside each pixel
+    perm = np.argsort(rng.random((n_pix, rounds)), axis=1)
+    x[:, dim - 1] = (perm[i % n_pix, i // n_pix] + rng.random(n)) / rounds
     np.minimum(x, np.nextafter(1.0, 0.0), out=x)
     return x
 
@@ -388,8 +418,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     p_large : float
         Probability of a large step (a fresh uniform state), in [0, 1].
     n_bootstrap : int or None
-        Bootstrap states *per depth*; None: ``max(chains, N / (4 max_depth))`` for ``N`` mutations (the
-        bootstrap then costs a quarter of the chains' work).
+        Bootstrap states *per depth*; None: ``max(chains, N / (4 max_depth), 1024)`` for ``N``
+        mutations (the bootstrap then costs about a quarter of the chains' work).
     bootstrap : bool
         True: start the chains at bootstrap states resampled ``∝ f_d``;
         False: at uniformly drawn lit bootstrap states of their depth
@@ -418,7 +448,7 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     chains = min(chains, n_mut)
     n_steps = -(-n_mut // chains)
     if n_boot is None:
-        n_boot = max(chains, n_mut // (4 * depth_max))
+        n_boot = max(chains, n_mut // (4 * depth_max), MIN_BOOTSTRAP)
     tracer = tracer if tracer is not None else Tracer(scene)
     ctx = _Context(scene, tracer, LightOrigins(scene), res, opts.heuristic, True)
     rays = [0]
@@ -458,18 +488,20 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
             lit = np.flatnonzero(w > 0)
             pick[at:at + c] = d * n_boot + lit[rng.integers(0, lit.size, size=c)]
         at += c
-    # splat scale per depth: b_d / N_d, and n_pix (the image is per pixel)
-    scale = np.zeros(depth_max + 1)
-    scale[1:] = np.divide(b * n_pix, per_depth * n_steps, out=np.zeros(depth_max), where=per_depth > 0)
-    image = np.zeros((n_pix, 3))
+    # per depth: the splats' sum / N_d (times b_d at the end), and the large steps' values
+    inv_n = np.zeros(depth_max + 1)
+    inv_n[1:] = np.divide(1.0, per_depth * n_steps, out=np.zeros(depth_max), where=per_depth > 0)
+    films = np.zeros(((depth_max + 1) * n_pix, 3))
+    large_n, large_s1, large_s2 = np.zeros(depth_max + 1), np.zeros(depth_max + 1), np.zeros(depth_max + 1)
 
     def splat(payload, weight, dd):
         pix, rgb = payload
         lum = rgb @ _LUM
         ok = (pix >= 0) & (weight > 0.0)
-        w = weight[ok] * scale[dd[ok]] / lum[ok]
+        w = weight[ok] * inv_n[dd[ok]] / lum[ok]
+        at = dd[ok] * n_pix + pix[ok]
         for c in range(3):
-            image[:, c] += np.bincount(pix[ok], weights=w * rgb[ok, c], minlength=n_pix)
+            films[:, c] += np.bincount(at, weights=w * rgb[ok, c], minlength=films.shape[0])
 
     n_acc = 0
     acc_d = np.zeros(depth_max)
@@ -479,9 +511,12 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
         sel = pick[a:a + CHAIN_CHUNK]
         dd = dep[a:a + CHAIN_CHUNK]
 
-        def visit(px, py, acc_prob, dd=dd):
+        def visit(px, py, acc_prob, fy, large, dd=dd):
             splat(px, 1.0 - acc_prob, dd)
             splat(py, acc_prob, dd)
+            large_n[:] += np.bincount(dd[large], minlength=depth_max + 1)
+            large_s1[:] += np.bincount(dd[large], weights=fy[large], minlength=depth_max + 1)
+            large_s2[:] += np.bincount(dd[large], weights=fy[large] ** 2, minlength=depth_max + 1)
 
         x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), cand[sel], fc[sel], (pc[sel], rc[sel]),
                                     n_steps, sigma, p_large, rng, visit=visit)
@@ -499,6 +534,12 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
             if n_steps >= MIN_TAU_STEPS:
                 tau[d] = max(integrated_time(v)[0], 1.0)
             acceptance[d] = acc_d[d] / v.size
+    # b_d from the bootstrap and the large steps together (both iid uniform samples of f_d)
+    n_b = n_boot + large_n[1:]
+    b = (fd.sum(axis=1) + large_s1[1:]) / n_b
+    var = np.maximum(((fd ** 2).sum(axis=1) + large_s2[1:]) / n_b - b * b, 0.0) * n_b / np.maximum(n_b - 1, 1)
+    b_se = np.sqrt(var / n_b)
+    image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
     done = chains * n_steps
     ess = per_depth * n_steps / tau
     return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
