@@ -93,10 +93,13 @@ def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):
               + " ".join(f"{b:.2g}" for _, b in stats[label]))
     for label, ex in extras.items():
         e = ex[0]
-        print(f"  {label}: b_d {np.array2string(e['b_depth'], precision=3)} +- "
-              f"{np.array2string(e['b_stderr_depth'], precision=2)}, chains {e['chains_depth'].astype(int)}, "
-              f"acceptance {float(e['acceptance_rate'][0]):.3f}, tau {np.array2string(e['tau_depth'], precision=2)}, "
-              f"ESS {np.array2string(e['ess_depth'], precision=0)}")
+
+        def g(a):
+            return "[" + " ".join(f"{v:.3g}" for v in np.asarray(a)) + "]"
+
+        print(f"  {label} (seed 0): b_d {g(e['b_depth'])} +- {g(e['b_stderr_depth'])}, chains "
+              f"{e['chains_depth'].astype(int)}, acceptance {float(e['acceptance_rate'][0]):.3f}, "
+              f"tau {g(e['tau_depth'])} (0: chains shorter than {mmlt.MIN_TAU_STEPS} steps), ESS {g(e['ess_depth'])}")
     return out
 
 
@@ -120,7 +123,7 @@ def main():
     table(scene, name, args.res, args.depth, args.seconds, args.seeds, rows, ref, noise)
     if args.trade:
         rows = [("path", "path", {})] + [(f"mmlt chains={c} sigma={s}", "mmlt", dict(chains=c, sigma=s))
-                                         for c in (4096, 16384, 65536) for s in (0.01, 0.05)]
+                                         for c in (1024, 4096, 16384) for s in (0.003, 0.01, 0.03)]
         table(scene, name, args.res, args.depth, args.seconds, args.seeds, rows, ref, noise)
     print(f"load average after: {os.getloadavg()}")
 
