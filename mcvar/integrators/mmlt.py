@@ -240,7 +240,7 @@ def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
     return y, large
 
 
-def lockstep(evaluate, x, fx, payload, n_steps: int, sigma: float, p_large: float, rng, visit=None):
+def lockstep(evaluate, start, n_steps: int, mutation, rng, visit=None):
     """Metropolis-Hastings for all chains at once: ``n_steps`` steps of Kelemen's mutation.
 
     Every chain proposes (:func:`kelemen_mutate`: a Gaussian step of size
@@ -248,12 +248,16 @@ def lockstep(evaluate, x, fx, payload, n_steps: int, sigma: float, p_large: floa
     state), ``evaluate(y) -> (f, payload)`` traces all proposals together,
     and every chain accepts with ``a = min(1, f(y) / f(x))`` at once (the
     proposal is symmetric, so ``f`` is invariant: detailed balance).
+    ``start = (x, fx, payload)``: the chains' states, their values and a
+    tuple of per-chain payload arrays; ``mutation = (sigma, p_large)``.
     ``visit(px, py, a, fy, large)`` sees each step's current and proposed
     payloads, the acceptance probabilities (for expected-value splatting),
     the proposals' values and which were large steps. Returns the
     final states, their values, the values after every step ``(n_steps,
     chains)`` (for the autocorrelation time) and each chain's number of accepted moves.
     """
+    x, fx, payload = start
+    sigma, p_large = mutation
     chains = x.shape[0]
     values = np.empty((n_steps, chains))
     n_acc = np.zeros(chains, dtype=np.int64)
@@ -356,6 +360,26 @@ def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
     x[:, dim - 1] = (perm[i % n_pix, i // n_pix] + rng.random(n)) / rounds
     np.minimum(x, np.nextafter(1.0, 0.0), out=x)
     return x
+
+
+def _starts(fd, per_depth, bootstrap: bool, rng) -> np.ndarray:
+    """Rows of the bootstrap (``fd``: values, shape (depths, n)) the chains of each depth start at:
+    drawn ``∝ f`` (bootstrap), or uniformly among the lit ones (start-up bias)."""
+    depths, n = fd.shape
+    pick = np.empty(int(per_depth.sum()), dtype=np.intp)
+    at = 0
+    for d in range(depths):
+        c = int(per_depth[d])
+        if c == 0:
+            continue
+        w = fd[d]
+        if bootstrap:
+            pick[at:at + c] = d * n + rng.choice(n, size=c, p=w / w.sum())
+        else:
+            lit = np.flatnonzero(w > 0)
+            pick[at:at + c] = d * n + lit[rng.integers(0, lit.size, size=c)]
+        at += c
+    return pick
 
 
 def _allocate(b, chains):
@@ -475,19 +499,7 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
                          "chains (raise n_bootstrap)")
     per_depth = _allocate(b, chains)
     dep = np.repeat(np.arange(1, depth_max + 1), per_depth)
-    pick = np.empty(chains, dtype=np.intp)
-    at = 0
-    for d in range(depth_max):
-        c = int(per_depth[d])
-        if c == 0:
-            continue
-        w = fd[d]
-        if opts.bootstrap:
-            pick[at:at + c] = d * n_boot + rng.choice(n_boot, size=c, p=w / w.sum())
-        else:
-            lit = np.flatnonzero(w > 0)
-            pick[at:at + c] = d * n_boot + lit[rng.integers(0, lit.size, size=c)]
-        at += c
+    pick = _starts(fd, per_depth, opts.bootstrap, rng)
     # per depth: the splats' sum / N_d (times b_d at the end), and the large steps' values
     inv_n = np.zeros(depth_max + 1)
     inv_n[1:] = np.divide(1.0, per_depth * n_steps, out=np.zeros(depth_max), where=per_depth > 0)
@@ -518,8 +530,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
             large_s1[:] += np.bincount(dd[large], weights=fy[large], minlength=depth_max + 1)
             large_s2[:] += np.bincount(dd[large], weights=fy[large] ** 2, minlength=depth_max + 1)
 
-        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), cand[sel], fc[sel], (pc[sel], rc[sel]),
-                                    n_steps, sigma, p_large, rng, visit=visit)
+        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (cand[sel], fc[sel], (pc[sel], rc[sel])),
+                                    n_steps, (sigma, p_large), rng, visit=visit)
         n_acc += int(n.sum())
         for d in range(depth_max):
             cols = np.flatnonzero(dd == d + 1)
