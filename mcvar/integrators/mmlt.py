@@ -442,8 +442,10 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     p_large : float
         Probability of a large step (a fresh uniform state), in [0, 1].
     n_bootstrap : int or None
-        Bootstrap states *per depth*; None: ``max(chains, N / (4 max_depth), 1024)`` for ``N``
-        mutations (the bootstrap then costs about a quarter of the chains' work).
+        Bootstrap states *per depth*; None: ``max(chains, N / 2, 1024)`` for ``N`` mutations. The
+        bootstrap's error in ``b_d``, a scale on the whole depth-``d`` image, dominated the MSE on
+        cornell-door: of ``N / 20``, ``N / 5``, ``N / 2`` and ``N`` per depth, ``N / 2`` was the
+        most efficient at 128-512 mutations per pixel (docs/mcmc.md, 'MMLT').
     bootstrap : bool
         True: start the chains at bootstrap states resampled ``∝ f_d``;
         False: at uniformly drawn lit bootstrap states of their depth
@@ -472,7 +474,9 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     chains = min(chains, n_mut)
     n_steps = -(-n_mut // chains)
     if n_boot is None:
-        n_boot = max(chains, n_mut // (4 * depth_max), MIN_BOOTSTRAP)
+        n_boot = max(chains, n_mut // 2, MIN_BOOTSTRAP)
+        check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot * depth_max, payload_words=4,
+                          dim_name="max_depth", dim_value=depth_max)
     tracer = tracer if tracer is not None else Tracer(scene)
     ctx = _Context(scene, tracer, LightOrigins(scene), res, opts.heuristic, True)
     rays = [0]
