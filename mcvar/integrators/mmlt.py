@@ -27,11 +27,13 @@ Chains run **in lockstep**: every chain proposes, every proposal is traced in
 one wavefront (a bounce iteration serves every chain whose path has that
 vertex), every chain accepts or rejects at once; chains are processed
 :data:`CHAIN_CHUNK` at a time to bound memory. One shared **bootstrap** per
-depth (``n_bootstrap`` uniform states each) estimates ``b_d`` with its
-standard error; chains are given depths in proportion to ``b_d`` (largest
-remainders, at least one chain per lit depth) and start at bootstrap states
-of their depth drawn ``∝ f_d`` (sampling-importance resampling: no start-up
-bias to burn off).
+depth (``n_bootstrap`` stratified uniform states each,
+:func:`stratified_states`) estimates ``b_d`` with its standard error;
+chains are given depths in proportion to ``b_d`` (largest remainders, at
+least one chain per lit depth) and start at bootstrap states of their depth
+drawn ``∝ f_d`` (sampling-importance resampling: no start-up bias to burn
+off). The chains' large steps are uniform samples of ``f_d`` too and join
+the bootstrap's in the final ``b_d``.
 
 References
 ----------
@@ -64,7 +66,8 @@ from .light import CHUNK_PATHS, PathNumbers, _connect_camera, _Context, camera_s
 from .registry import Method, register
 
 __all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "MIN_TAU_STEPS", "MmltSettings", "MmltFilm", "StateLayout",
-           "mmlt_film", "stratified_states", "evaluate_states", "lockstep", "run_batch"]
+           "mmlt_film", "stratified_states", "evaluate_states", "kelemen_mutate", "lockstep",
+           "run_batch"]
 
 #: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
 #: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
