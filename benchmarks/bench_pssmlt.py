@@ -1,75 +1,146 @@
-"""PSSMLT vs path tracing: MSE x time on cornell-door and cornell (prints tables; not a test).
+"""PSSMLT vs path tracing at equal time on cornell-door (prints tables; not a test).
 
-Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_pssmlt.py [--quick] [--res 32]``
+Run: ``PYTHONPATH=. /work/venv/bin/python benchmarks/bench_pssmlt.py [--seconds 1.5] [--seeds 3]``
 
-For each scene: a path-traced reference (``--ref-spp``, default 8192 at 32 x 32),
-then ``path`` and ``pssmlt`` (``render(..., integrator="pssmlt")`` defaults) at a ladder of spp,
-interleaved, ``--reps`` independent runs each. Prints the median wall time, the
-mean MSE against the reference (the reference's own variance, ``variance /
-spp`` per pixel, subtracted) with its standard error over the runs, the
-median MSE (MSE is heavy-tailed: fireflies), and mean MSE x median time
-(lower is better; ``1 / efficiency``). ``pssmlt-1k`` is PSSMLT with 1024
-chains (4x longer chains, 4x smaller wavefronts per step). ``bdpt`` is added when the integrator exists.
-Timings are wall clock on whatever machine runs this: on a shared, loaded
-machine compare medians, not single runs.
+Every method gets about the same wall time (``--seconds``): its spp is
+calibrated by a short run, then ``--seeds`` independent renders are timed,
+interleaved method by method. The error is the MSE against one shared
+high-spp path-traced reference (``--ref-spp``, cached on disk in
+``--cache-dir`` keyed by scene, resolution, spp and seed; its own noise per
+pixel, from its independent chunks, is subtracted). Reported per method:
+median time, median MSE (MSE is heavy-tailed: fireflies), and the
+efficiency ``1 / (median MSE x median time)`` relative to path tracing's.
+
+A method is ``path`` or ``pssmlt`` with options, written
+``pssmlt:chains=4096,sigma=0.03,batch=whole``: ``batch=whole`` renders all
+spp as one PSSMLT run (``batch_spp=spp``: one bootstrap, chains as long as
+the whole render) instead of the driver's batches of 2^16 mutations.
+``--trade`` measures the chain-count x mutation-size table of
+docs/mcmc.md. Timings are wall clock on whatever machine runs this: the load
+average is printed before and after; on a shared machine compare ratios
+within one run.
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
+import time
+from pathlib import Path
 
 import numpy as np
 
-from mcvar.integrators import INTEGRATORS, render
+from mcvar.integrators import render
 from mcvar.scene import load_scene
 
-
-def _run(method, scene, spp, res, rng):
-    if method == "pssmlt-1k":                                   # longer chains, smaller wavefronts
-        return render(scene, integrator="pssmlt", spp=spp, res=res, rng=rng, chains=1024)
-    return render(scene, integrator=method, spp=spp, res=res, rng=rng)
+DEFAULT_METHODS = ("path", "pssmlt", "pssmlt:batch=whole", "pssmlt:chains=4096,batch=whole")
+TRADE_CHAINS = (4096, 16384, 65536)
+TRADE_SIGMAS = (0.003, 0.01, 0.03, 0.1)
 
 
-def table(name, res, ref_spp, ladder, reps, methods):
-    scene = load_scene(name)
-    ref = render(scene, spp=ref_spp, res=res, rng=np.random.SeedSequence(99))
-    ref_var = float((ref.variance / ref.spp).mean())
-    print(f"\n== {name} {res}x{res}: reference path {ref_spp} spp ({ref.seconds:.1f} s), "
-          f"its own variance per pixel {ref_var:.3g} (subtracted)")
-    print(f"{'method':>9} {'spp':>5} {'time s':>8} {'MSE mean':>10} {'+- SE':>9} {'MSE median':>10} "
-          f"{'MSE x time':>11} {'runs':>4}")
+def reference(scene_name: str, res: int, spp: int, cache_dir: Path, chunks: int = 8, seed: int = 4242):
+    """Path tracing at ``spp`` in ``chunks`` independent renders: ``(mean image, its variance per pixel)``,
+    read from ``cache_dir`` when there."""
+    key = hashlib.sha256(f"{scene_name}-{res}-{spp}-{chunks}-{seed}".encode()).hexdigest()[:12]
+    path = cache_dir / f"bench-pssmlt-reference-{scene_name}-{res}-{spp}-{key}.npz"
+    if path.exists():
+        with np.load(path) as data:
+            return data["value"], data["variance"]
+    scene = load_scene(scene_name)
+    images = np.array([render(scene, spp=spp // chunks, res=res, rng=s, progress=False).image
+                       for s in np.random.SeedSequence(seed).spawn(chunks)])
+    value, variance = images.mean(axis=0), images.var(axis=0, ddof=1) / chunks
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    np.savez(path, value=value, variance=variance)
+    return value, variance
+
+
+def parse_method(spec: str):
+    """``'pssmlt:chains=4096,batch=whole'`` -> ``('pssmlt', {'chains': 4096}, whole=True)``."""
+    name, _, rest = spec.partition(":")
+    options, whole = {}, False
+    for item in filter(None, rest.split(",")):
+        key, _, value = item.partition("=")
+        if key == "batch":
+            whole = value == "whole"
+        else:
+            options[key] = float(value) if "." in value else int(value)
+    return name, options, whole
+
+
+def run(scene, spec: str, spp: int, res: int, rng):
+    name, options, whole = parse_method(spec)
+    kw = dict(batch_spp=spp) if whole else {}
+    return render(scene, integrator=name, spp=spp, res=res, rng=rng, progress=False, **options, **kw)
+
+
+def calibrate(scene, spec: str, res: int, seconds: float) -> int:
+    """The spp that takes about ``seconds`` (from a run of about a tenth of it)."""
+    spp = 4
+    while True:
+        t = run(scene, spec, spp, res, 12345).seconds
+        if t > 0.1 * seconds or spp >= 1 << 16:
+            break
+        spp *= 2
+    return max(1, int(round(spp * seconds / t)))
+
+
+def equal_time(scene_name, methods, *, res, seconds, seeds, ref_spp, cache_dir):
+    scene = load_scene(scene_name)
+    ref, ref_var = reference(scene_name, res, ref_spp, cache_dir)
+    noise = float(ref_var.mean())
+    spps = {m: calibrate(scene, m, res, seconds) for m in methods}
+    stats = {m: [] for m in methods}
+    for seed in np.random.SeedSequence(2026).spawn(seeds):
+        for m in methods:                                   # interleaved
+            r = run(scene, m, spps[m], res, seed)
+            stats[m].append((r.seconds, float(np.mean((r.image - ref) ** 2)) - noise, r.extra))
     rows = []
-    for spp in ladder:
-        stats = {m: [] for m in methods}
-        for k, seed in enumerate(np.random.SeedSequence(spp).spawn(reps)):
-            for m in methods:                                   # interleaved
-                r = _run(m, scene, spp, res, seed)
-                err = float(np.mean((r.image - ref.image) ** 2)) - ref_var
-                stats[m].append((r.seconds, err))
-        for m in methods:
-            t = np.array([s for s, _ in stats[m]])
-            e = np.array([x for _, x in stats[m]])
-            row = (m, spp, float(np.median(t)), float(e.mean()), float(e.std(ddof=1) / np.sqrt(reps)),
-                   float(np.median(e)), float(np.median(t) * e.mean()), reps)
-            rows.append(row)
-            print(f"{row[0]:>9} {row[1]:>5} {row[2]:>8.3f} {row[3]:>10.3g} {row[4]:>9.2g} {row[5]:>10.3g} "
-                  f"{row[6]:>11.3g} {row[7]:>4}")
+    for m in methods:
+        t = np.median([s[0] for s in stats[m]])
+        e = np.array([s[1] for s in stats[m]])
+        extra = stats[m][0][2]
+        rows.append(dict(method=m, spp=spps[m], seconds=float(t), mse=float(np.median(e)),
+                         mse_mean=float(e.mean()), mse_se=float(e.std(ddof=1) / np.sqrt(len(e))) if len(e) > 1 else 0.0,
+                         efficiency=float(1.0 / (np.median(e) * t)),
+                         acceptance=float(np.ravel(extra["acceptance_rate"])[0]) if "acceptance_rate" in extra else None,
+                         tau=float(np.ravel(extra["tau"])[0]) if "tau" in extra else None))
+    base = next((r["efficiency"] for r in rows if r["method"] == "path"), None)
+    print(f"\n== {scene_name} {res}x{res}, about {seconds:g} s per render, {seeds} seeds; reference path "
+          f"{ref_spp} spp (noise {noise:.2g} subtracted)")
+    print(f"{'method':<36} {'spp':>6} {'time s':>7} {'MSE median':>11} {'MSE mean +- SE':>20} "
+          f"{'efficiency':>11} {'vs path':>8} {'accept':>7} {'tau':>6}")
+    for r in rows:
+        rel = r["efficiency"] / base if base else float("nan")
+        acc = "" if r["acceptance"] is None else f"{r['acceptance']:.2f}"
+        tau = "" if r["tau"] is None else f"{r['tau']:.1f}"
+        print(f"{r['method']:<36} {r['spp']:>6} {r['seconds']:>7.2f} {r['mse']:>11.3g} "
+              f"{r['mse_mean']:>10.3g} +- {r['mse_se']:<7.2g} {r['efficiency']:>11.3g} {rel:>8.3f} {acc:>7} {tau:>6}")
     return rows
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--scene", default="cornell-door")
     ap.add_argument("--res", type=int, default=32)
-    ap.add_argument("--ref-spp", type=int, default=8192)
-    ap.add_argument("--reps", type=int, default=4)
+    ap.add_argument("--seconds", type=float, default=1.5)
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--ref-spp", type=int, default=16384)
+    ap.add_argument("--cache-dir", type=Path, default=Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+                    / "mcvar")
+    ap.add_argument("--methods", default=";".join(DEFAULT_METHODS),
+                    help="methods separated by ';' (see the module docstring)")
+    ap.add_argument("--trade", action="store_true", help="the chain-count x sigma table (batch=whole)")
     args = ap.parse_args()
     print(f"load average before: {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} CPUs")
-    methods = ["path", "pssmlt", "pssmlt-1k"] + (["bdpt"] if "bdpt" in INTEGRATORS else [])
-    ladder = (16, 64) if args.quick else (16, 64, 256)
-    ref_spp = 1024 if args.quick else args.ref_spp
-    for name in ("cornell-door", "cornell"):
-        table(name, args.res, ref_spp, ladder, args.reps, methods)
+    start = time.perf_counter()
+    if args.trade:
+        methods = ["path"] + [f"pssmlt:chains={c},sigma={s},batch=whole" for c in TRADE_CHAINS for s in TRADE_SIGMAS]
+    else:
+        methods = [m.strip() for m in args.methods.split(";") if m.strip()]
+    equal_time(args.scene, methods, res=args.res, seconds=args.seconds, seeds=args.seeds, ref_spp=args.ref_spp,
+               cache_dir=args.cache_dir)
+    print(f"load average after: {os.getloadavg()[0]:.2f}; {time.perf_counter() - start:.0f} s")
 
 
 if __name__ == "__main__":

@@ -247,20 +247,25 @@ def _add_compare_parser(sub, quiet) -> None:
                                    "compare.csv (median spp, seconds, MSE, efficiency 1 / (MSE x time) over "
                                    "the seeds), compare.png (methods x scenes, the winner of each column "
                                    "framed) and compare.html. Ctrl-C writes the cells finished so far.")
-    p.add_argument("--scenes", type=_name_list, default=["cornell"],
-                   help=_RegistryHelp("comma-separated scenes: {scenes} (default cornell)", "scenes"))
+    p.add_argument("--scenes", type=_name_list, default=None,
+                   help=_RegistryHelp("comma-separated scenes: {scenes} (default the scenes of issue 21: "
+                                      "cornell,cornell-point,cornell-door,cornell-caustic,veach-mis, "
+                                      "mcvar.experiments.compare.DEFAULT_SCENES)", "scenes"))
     p.add_argument("--methods", type=_name_list, default=None,
-                   help=_RegistryHelp("comma-separated registered methods: {methods} (default "
-                                      "path,path_bsdf,direct,light,bdpt,pssmlt,photon,sppm,radiosity: "
-                                      "mcvar.experiments.compare.DEFAULT_METHODS, those registered)", "methods"))
+                   help=_RegistryHelp("comma-separated registered methods: {methods} (default every "
+                                      "registered light-transport method, the AOVs and rasterization left "
+                                      "out: mcvar.experiments.compare.default_methods())", "methods"))
     p.add_argument("--seconds", type=float, default=2.0, help="wall time per method, scene and seed (default 2)")
     p.add_argument("--res", type=int, default=32, help="image width and height in pixels (default 32)")
     p.add_argument("--seeds", type=int, default=3, help="independent runs per cell; medians reported (default 3)")
     p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     p.add_argument("--pairs", action="store_true",
-                   help="also the lecture's pairs at equal time (path / path_bsdf / light at the point light, "
-                        "path / pssmlt on cornell-door, path / sppm on cornell-spheres' caustic) and radiosity's "
-                        "second view from one solve: pairs.csv, radiosity_views.csv")
+                   help="also the lecture's pairs at equal time (path / path_bsdf / light at the point light and "
+                        "forward tracing without the camera connection, path / bdpt on cornell-caustic's caustic "
+                        "and at the point light, path / the Metropolis methods on cornell-door, path / sppm on "
+                        "the caustic), BDPT's (s, t) strategy grid on cornell-caustic and radiosity's second "
+                        "view from one solve: pairs.csv, strategies.csv, strategies.png, point_light.csv, "
+                        "radiosity_views.csv")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder (default out/compare)")
     p.set_defaults(func=_cmd_compare)
 

@@ -13,7 +13,13 @@ and writes into ``out``
   image and its relative efficiency, the winner of each column framed, a
   refused cell its reason; the shared reference on top;
 * ``compare.html``: the table, the figure, the references and why each was
-  chosen, in the style of the convergence report (one self-contained file).
+  chosen, in the style of the convergence report (one self-contained file);
+* with the pairs (``pairs=True``): ``pairs.csv`` (the slide pairs at equal
+  time), ``strategies.csv`` and ``strategies/`` (BDPT's (s, t) strategies on
+  ``cornell-caustic``: per-strategy energy and variance, the grid image
+  ``strategies/strategies.png``), ``forward_tracing.csv`` (light tracing
+  without the camera connection: rays through the pinhole) and
+  ``radiosity_views.csv`` (one solve, two views).
 """
 from __future__ import annotations
 
@@ -25,14 +31,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .experiments.compare import PAIRS, CompareResult, measure_compare, measure_pairs, radiosity_views
+from .experiments.compare import (PAIRS, CompareResult, StrategyGrid, forward_pinhole_hits, measure_compare,
+                                  measure_pairs, measure_strategy_grid, radiosity_views)
+from .experiments.slide_pairs import STRATEGY_COLUMNS
 from .plotting import plt, save_figure
 from .images import linear_to_srgb
 from .pages import (CSS as _CSS, PRINT_JS as _PRINT_JS, details as _details, fmt as _fmt, img as _img,
                     table as _table, write_csv as _csv)
 
 __all__ = ["compare_report", "write_compare", "plot_matrix", "compare_section", "pair_rows", "pairs_section",
-           "VIEW_COLUMNS", "view_rows"]
+           "VIEW_COLUMNS", "view_rows", "strategy_rows", "forward_rows", "write_strategy_grid"]
 
 _WIN = "#2a9d3a"
 
@@ -168,8 +176,57 @@ def view_rows(views: dict) -> list[dict]:
     return [dict(quantity=k, value=float(views[k])) for k in keys]
 
 
-def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2") -> str:
-    """The slide pairs as an HTML section: per pair the lecture's claim and the measured cells."""
+def strategy_rows(grid: StrategyGrid) -> list[dict]:
+    """Rows of ``strategies.csv`` (:data:`~mcvar.experiments.slide_pairs.STRATEGY_COLUMNS`)."""
+    return [{c: r[c] for c in STRATEGY_COLUMNS} for r in grid.rows]
+
+
+def forward_rows(forward: dict) -> list[dict]:
+    """Rows of ``forward_tracing.csv``: the counts of :func:`~mcvar.experiments.compare.forward_pinhole_hits`."""
+    rows = [dict(quantity=k, value=forward[k]) for k in ("paths", "rays", "escaping", "hits", "energy_fraction",
+                                                          "closest", "seconds")]
+    rows += [dict(quantity=f"fraction of rays within {r:g} of the pinhole", value=v)
+             for r, v in forward["within"].items()]
+    return rows
+
+
+def write_strategy_grid(grid: StrategyGrid, out) -> dict[str, Path]:
+    """``strategies.csv`` and ``strategies/`` (``s{s}_t{t}.npy`` and the grid ``strategies.png``:
+    :func:`mcvar.integrators.bdpt.write_strategies`) into ``out``."""
+    from .integrators.bdpt import write_strategies
+
+    out = Path(out)
+    res = grid.image.shape[1], grid.image.shape[0]
+    written = write_strategies(out / "strategies", grid.strategies, res, grid.max_depth)
+    return {"strategies": _csv(out / "strategies.csv", strategy_rows(grid)), "strategies_png": written[-1]}
+
+
+def _strategy_html(grid: StrategyGrid, png) -> str:
+    rows = [(f"({r['s']}, {r['t']})", r["depth"], _fmt(r["share"]), _fmt(r["region_share"]),
+             _fmt(r["region_variance"]), _fmt(r["pixel_variance"])) for r in grid.rows if r["energy"] > 0]
+    carriers = ", ".join(f"({s}, {t})" for s, t in grid.carriers())
+    text = (f"<h3>BDPT's (s, t) strategies on {html.escape(grid.scene)}</h3>"
+            f"<p>{grid.renders} renders of {grid.spp} spp at max_depth {grid.max_depth} (every strategy kept: "
+            "they sum to the image). s light vertices, t camera vertices; share of the image's energy and of "
+            f"the caustic's ({html.escape(_region_text_of(grid.region))}), the variance of one render's caustic "
+            f"mean and the mean pixel variance there. The caustic is carried by {carriers}.</p>")
+    text += _table(("strategy (s, t)", "depth", "share of the image", "share of the caustic",
+                    "variance of the caustic mean", "pixel variance in the caustic"), rows)
+    if png is not None:
+        text += _img(png, "Each strategy's weighted image: row = depth s + t - 1, column = s (exposure 4).")
+    return text
+
+
+def _region_text_of(region) -> str:
+    from .experiments.compare_matrix import _region_text
+
+    return _region_text(region) or "whole image"
+
+
+def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2", grid: StrategyGrid | None = None,
+                  grid_png=None, forward: dict | None = None) -> str:
+    """The slide pairs as an HTML section: per pair the lecture's claim and the measured cells (and the
+    BDPT strategy grid, forward tracing without the camera connection, radiosity's two views)."""
     parts = [f"<{heading}>The lecture's pairs, at equal time</{heading}>"]
     for name, result in pairs.items():
         scene = result.scenes[0] if result.scenes else PAIRS[name][0]
@@ -183,6 +240,14 @@ def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2"
                      + _table(("method", "spp", "seconds", "MSE", "reference noise", "mean / reference mean",
                                "efficiency",
                                "relative", "winner", "reason"), rows))
+    if forward is not None:
+        parts.append(f"<h3>forward tracing without the camera connection ({html.escape(forward['scene'])})</h3>"
+                     f"<p>{forward['paths']} light paths, {forward['rays']} rays ({forward['escaping']} leaving "
+                     f"the scene): {forward['hits']} pass through the pinhole, so the image without the "
+                     f"connection holds {forward['energy_fraction']:.3g} of the reference's energy (black). "
+                     f"The closest ray passes {forward['closest']:.3g} units from it.</p>")
+    if grid is not None:
+        parts.append(_strategy_html(grid, grid_png))
     if views is not None:
         parts.append("<h3>radiosity: one solve, two views</h3>"
                      f"<p>Solve {views['solve_seconds']:.3f} s; view 1 from it {views['view1_seconds']:.3f} s, "
@@ -194,7 +259,8 @@ def pairs_section(pairs: dict, views: dict | None = None, *, heading: str = "h2"
 
 
 def write_compare(result: CompareResult, out, *, command: str | None = None, pairs: dict | None = None,
-                  views: dict | None = None) -> dict[str, Path]:
+                  views: dict | None = None, grid: StrategyGrid | None = None,
+                  forward: dict | None = None) -> dict[str, Path]:
     """Write ``compare.csv``, ``compare_runs.csv``, ``compare.png`` and ``compare.html`` into ``out``
     (and ``pairs.csv``, ``radiosity_views.csv`` with a section of the page when ``pairs`` / ``views``
     are given: :func:`~mcvar.experiments.compare.measure_pairs`,
@@ -214,8 +280,13 @@ def write_compare(result: CompareResult, out, *, command: str | None = None, pai
         paths["pairs"] = _csv(out / "pairs.csv", pair_rows(pairs))
     if views is not None:
         paths["views"] = _csv(out / "radiosity_views.csv", view_rows(views))
-    if pairs or views is not None:
-        extra.append(pairs_section(pairs or {}, views))
+    if forward is not None:
+        paths["forward"] = _csv(out / "forward_tracing.csv", forward_rows(forward))
+    if grid is not None:
+        paths.update(write_strategy_grid(grid, out))
+    if pairs or views is not None or grid is not None or forward is not None:
+        extra.append(pairs_section(pairs or {}, views, grid=grid, grid_png=paths.get("strategies_png"),
+                                   forward=forward))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
     facts = [("scenes", ", ".join(result.scenes)), ("methods", ", ".join(result.methods)),
              ("seconds per method and scene", result.seconds), ("resolution", f"{result.res} x {result.res}"),
@@ -255,7 +326,9 @@ def compare_report(out, settings=None, *, scenes=None, methods=None, progress: b
     run renders none). Ctrl-C writes the cells finished so far.
     ``pairs=True`` measures the slide pairs too
     (:func:`~mcvar.experiments.compare.measure_pairs`, the same references)
-    and radiosity's two views of one solve.
+    BDPT's strategy grid on ``cornell-caustic``, forward tracing without the
+    camera connection at the point light and radiosity's two views of one
+    solve.
 
     Returns
     -------
@@ -273,12 +346,15 @@ def compare_report(out, settings=None, *, scenes=None, methods=None, progress: b
         raise ValueError(f"out must be a folder; {out} exists and is not one")
     out.mkdir(parents=True, exist_ok=True)
     result = measure_compare(settings=st, cache_dir=out / ".cache", progress=progress)
-    measured, views = None, None
+    measured, views, grid, forward = None, None, None, None
     if pairs and not result.interrupted:
         try:
             measured = measure_pairs(seconds=st.seconds, res=st.res, seeds=st.seeds, seed=st.seed,
-                                     cache_dir=out / ".cache", progress=progress)
-            views = radiosity_views("cornell", res=st.res, seed=st.seed, cache_dir=out / ".cache")
+                                     cache_dir=out / ".cache", progress=progress, reference_spp=st.reference_spp)
+            forward = forward_pinhole_hits("cornell-point", seed=st.seed)
+            grid = measure_strategy_grid("cornell-caustic", res=st.res, seed=st.seed, progress=progress)
+            views = radiosity_views("cornell", res=st.res, seed=st.seed, cache_dir=out / ".cache",
+                                    reference_spp=(st.reference_spp or {}).get("cornell"))
         except KeyboardInterrupt:
             pass
-    return write_compare(result, out, command=command, pairs=measured, views=views)
+    return write_compare(result, out, command=command, pairs=measured, views=views, grid=grid, forward=forward)

@@ -12,7 +12,7 @@ from .chart_report import chart_section, write_chart
 from .experiments import measure_chart, scene_target
 from .report import convergence_report
 
-__all__ = ["demo", "DEMO_SETTINGS"]
+__all__ = ["demo", "DEMO_SETTINGS", "compare_link"]
 
 #: What ``mcvar demo`` runs: 64 x 64 pixels in 25 s on a shared 2-core machine at
 #: load ~2, 44-56 s at load 5-7 (the former 32 x 32 up to 256 spp with 8 replicates
@@ -22,6 +22,23 @@ __all__ = ["demo", "DEMO_SETTINGS"]
 DEMO_SETTINGS = dict(methods=("path", "path:3", "direct"), samplers=("random", "jittered", "sobol"),
                      spp=(1, 4, 16, 64), replicates=6, res=64, rng=0, reference_spp=256,
                      chart=dict(quick=True))
+
+
+def compare_link(out) -> str:
+    """The report's section that links the equal-time comparison (issue 21): ``compare/compare.html``
+    beside the report when ``mcvar compare --pairs --out OUT/compare`` has written it, the command
+    otherwise, and the docs page *Choosing a method* (``docs/compare.md``) and notebook 10."""
+    page = Path(out) / "compare" / "compare.html"
+    where = ("<a href='compare/compare.html'>compare/compare.html</a> (beside this page)" if page.is_file() else
+             "<code>compare/compare.html</code> once <code>mcvar compare --pairs --out "
+             f"{Path(out) / 'compare'}</code> has run (a few minutes)")
+    return ("<h2>Choosing a method: every method at equal time</h2>"
+            "<p>This report measures how path tracing converges on one scene; which method wins where "
+            "(path tracing, BDPT, light tracing, Metropolis, photon mapping, radiosity on the scenes made "
+            "for them, at equal wall time, efficiency 1 / (MSE x time)) is measured by "
+            f"<code>mcvar compare</code>: {where}. Its numbers and the reasons are on the docs page "
+            "<i>Choosing a method</i> (<code>docs/compare.md</code>) and in notebook 10 "
+            "(<code>notebooks/10_choosing_a_method.ipynb</code>).</p>")
 
 
 def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str, Path]:
@@ -36,7 +53,7 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
 
     The report includes the lecture's Rendering Algorithm Chart measured by
     ``mcvar chart --quick`` (:mod:`mcvar.chart_report`; its files in
-    ``out/chart``).
+    ``out/chart``) and links the equal-time comparison (:func:`compare_link`).
     """
     s = DEMO_SETTINGS
     sections, chart_paths = [], {}
@@ -47,6 +64,7 @@ def demo(out, *, progress: bool = True, workers: int | None = None) -> dict[str,
         sections.append(chart_section(chart, chart_paths["png"])
                         + "<p class='note'>Also in <code>chart/chart.html</code> and <code>chart/chart.csv"
                           "</code> beside this page.</p>")
+    sections.append(compare_link(out))
     target = scene_target("cornell", res=s["res"], reference_spp=s.get("reference_spp", 1024))
     paths = convergence_report(target, out, methods=s["methods"], samplers=s["samplers"], spp=s["spp"],
                                replicates=s["replicates"], res=s["res"], rng=s.get("rng", s.get("seed", 0)),

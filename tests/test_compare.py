@@ -12,6 +12,7 @@ import pytest
 from mcvar import cli
 from mcvar.compare_report import compare_report, write_compare
 from mcvar.experiments import compare as cmp
+from mcvar.experiments import compare_args
 from mcvar.integrators import METHODS
 from mcvar.scene import load_scene
 
@@ -59,7 +60,7 @@ def test_equal_time_image_is_the_spp_weighted_mean_of_its_rounds(monkeypatch):
         time.sleep(2e-5 * spp)  # a cost per sample, so that the rounds' sizes follow the measured rate
         return R(spp)
 
-    monkeypatch.setattr(cmp, "_render", fake)
+    monkeypatch.setattr(compare_args, "_render", fake)
     tr = cmp.equal_time_render(load_scene("cornell"), "path", seconds=0.05, res=RES, rng=1)
     s = np.array(calls, float)
     assert len(s) >= 3 and len(set(calls)) >= 2  # rounds of different sizes
@@ -68,13 +69,13 @@ def test_equal_time_image_is_the_spp_weighted_mean_of_its_rounds(monkeypatch):
 
 
 def test_reference_cache_is_reused_and_invalidated(tmp_path, monkeypatch):
-    real, count = cmp._render, []
+    real, count = compare_args._render, []
 
     def counting(*args, **kwargs):
         count.append(kwargs["integrator"])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(cmp, "_render", counting)
+    monkeypatch.setattr(compare_args, "_render", counting)
     first = cmp.scene_reference("cornell", RES, spp=8, chunks=2, cache_dir=tmp_path)
     assert len(count) == 2 and not first.cached
     second = cmp.scene_reference("cornell", RES, spp=8, chunks=2, cache_dir=tmp_path)
@@ -95,7 +96,7 @@ def test_reference_noise_is_the_variance_of_the_chunk_mean(tmp_path, monkeypatch
         def __init__(self, image):
             self.image, self.spp, self.interrupted = image, 1, False
 
-    monkeypatch.setattr(cmp, "_render", lambda *a, **k: R(images.pop(0)))
+    monkeypatch.setattr(compare_args, "_render", lambda *a, **k: R(images.pop(0)))
     ref = cmp.scene_reference("cornell", RES, spp=3, chunks=3, cache_dir=tmp_path)
     np.testing.assert_allclose(ref.value, 3.0)
     assert ref.noise == pytest.approx(np.var([1.0, 2.0, 6.0], ddof=1) / 3)
@@ -161,8 +162,8 @@ def test_winner_is_the_argmax_of_efficiency_per_column(report):
 def test_second_report_renders_no_reference(report, monkeypatch):
     out, _ = report
     seen = []
-    real = cmp._render
-    monkeypatch.setattr(cmp, "_render", lambda *a, **k: seen.append(k.get("spp")) or real(*a, **k))
+    real = compare_args._render
+    monkeypatch.setattr(compare_args, "_render", lambda *a, **k: seen.append(k.get("spp")) or real(*a, **k))
     result = cmp.measure_compare(["cornell"], ["direct"], seconds=0.05, res=RES, seeds=1, seed=3,
                                  cache_dir=out / ".cache", progress=False, reference_spp=REF_SPP)
     assert result.references["cornell"].cached
@@ -170,14 +171,14 @@ def test_second_report_renders_no_reference(report, monkeypatch):
 
 
 def test_ctrl_c_keeps_the_finished_cells(monkeypatch, tmp_path):
-    real = cmp._render
+    real = compare_args._render
 
     def interrupt_on_light(*args, **kwargs):
         if kwargs["integrator"] == "light":
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(cmp, "_render", interrupt_on_light)
+    monkeypatch.setattr(compare_args, "_render", interrupt_on_light)
     result = cmp.measure_compare(["cornell"], ["direct", "light", "path"], seconds=0.05, res=RES, seeds=1,
                                  cache_dir=tmp_path, progress=False, reference_spp=REF_SPP,
                                  references={"cornell": "path"})
@@ -192,7 +193,7 @@ def test_ctrl_c_keeps_the_finished_cells(monkeypatch, tmp_path):
     (dict(seconds=-1.0), "seconds"), (dict(seconds=math.nan), "seconds"), (dict(res=0), "res"),
     (dict(res=-4), "res"), (dict(seeds=0), "seeds")])
 def test_bad_input_is_a_value_error_naming_the_argument(kwargs, name, tmp_path, monkeypatch):
-    monkeypatch.setattr(cmp, "_render", lambda *a, **k: pytest.fail("rendered before validating"))
+    monkeypatch.setattr(compare_args, "_render", lambda *a, **k: pytest.fail("rendered before validating"))
     args = dict(scenes="cornell", methods="path", seconds=1.0, res=8, seeds=1) | kwargs
     with pytest.raises(ValueError, match=name):
         cmp.measure_compare(args.pop("scenes"), args.pop("methods"), progress=False, **args)
@@ -241,7 +242,7 @@ def test_region_mse_is_measured_inside_the_region_only(tmp_path):
 def test_point_light_pair_path_bsdf_is_black_and_pairs_go_to_the_page(tmp_path):
     pairs = cmp.measure_pairs(seconds=0.05, res=RES, seeds=1, cache_dir=tmp_path, progress=False,
                               pairs=["point light", "caustic"],
-                              reference_spp={"cornell-point": 64, "cornell-spheres": 8})
+                              reference_spp={"cornell-point": 64, "cornell-caustic": 8})
     point = pairs["point light"]
     assert point.methods == ("path", "path_bsdf", "light")
     # BSDF sampling alone never hits a point light: exactly black, where path tracing is not
@@ -258,3 +259,132 @@ def test_point_light_pair_path_bsdf_is_black_and_pairs_go_to_the_page(tmp_path):
                                                         ("point light", "light"), ("caustic", "path"),
                                                         ("caustic", "sppm")}
     assert "BSDF sampling alone" in paths["html"].read_text()
+
+
+# --------------------------------------------------------------------------
+# the default matrix, the new pairs (issue 21)
+# --------------------------------------------------------------------------
+
+def test_default_matrix_is_the_issue_scenes_and_every_transport_method(monkeypatch):
+    from dataclasses import replace
+
+    st = cmp.compare_settings()
+    assert tuple(st.scenes) == ("cornell", "cornell-point", "cornell-door", "cornell-caustic", "veach-mis")
+    methods = cmp.default_methods()
+    # every registered method that estimates light transport, none of the AOVs / rasterization
+    assert set(methods) == {m for m, e in METHODS.items() if e.kind != "first_hit" or e.prepare is not None}
+    assert {"albedo", "normal", "depth", "raster", "position"}.isdisjoint(methods)
+    assert methods[:3] == ("path", "path_bsdf", "direct")
+    # a method registered later (a Metropolis method, say) joins the matrix and the Metropolis pair
+    toy = replace(METHODS["pssmlt"], name="toy_mlt")
+    monkeypatch.setitem(METHODS, "toy_mlt", toy)
+    assert cmp.default_methods()[-1] == "toy_mlt"
+    from mcvar.experiments import slide_pairs
+    assert "toy_mlt" in slide_pairs.metropolis_methods()
+    assert "toy_mlt" in slide_pairs._pair_methods("metropolis", cmp.PAIRS["metropolis"][1])
+
+
+def test_cells_of_the_new_scenes_that_radiosity_cannot_render_carry_its_reason(tmp_path):
+    result = cmp.measure_compare(["cornell-caustic", "veach-mis"], ["radiosity"], seconds=0.05, res=RES, seeds=1,
+                                 cache_dir=tmp_path, progress=False,
+                                 reference_spp={"cornell-caustic": 8, "veach-mis": 8})
+    entry = METHODS["radiosity"]
+    for scene in ("cornell-caustic", "veach-mis"):
+        cell = result.cells[(scene, "radiosity")]
+        assert not cell.rendered and cell.runs == ()
+        with pytest.raises(ValueError) as exc:
+            entry.check_scene(load_scene(scene), entry.resolve_options(cmp._options("radiosity")))
+        assert cell.reason == str(exc.value) and "Lambertian" in cell.reason
+        assert result.winner(scene) is None
+
+
+def test_strategy_grid_sums_to_the_bdpt_image_exactly():
+    grid = cmp.measure_strategy_grid("cornell-caustic", res=RES, spp=2, renders=2, seed=5)
+    total = sum(grid.strategies.values())
+    np.testing.assert_allclose(total, grid.image, rtol=1e-12, atol=1e-15)
+    assert grid.image.mean() > 0
+    # the shares are each strategy's part of one sum: they add to 1, in the image and in the caustic
+    assert sum(r["share"] for r in grid.rows) == pytest.approx(1.0, rel=1e-12)
+    assert sum(r["region_share"] for r in grid.rows) == pytest.approx(1.0, rel=1e-12)
+    # every strategy of depth <= 4 that the caustic scene can produce is kept (s light, t camera vertices)
+    assert set(grid.strategies) <= {(s, t) for s in range(5) for t in range(1, 6) if 2 <= s + t <= 5}
+    assert (4, 1) in grid.strategies and (0, 5) in grid.strategies
+    with pytest.raises(ValueError, match="max_depth"):
+        cmp.measure_strategy_grid(res=RES, spp=1, renders=2, max_depth=5)
+    with pytest.raises(ValueError, match="renders"):
+        cmp.measure_strategy_grid(res=RES, spp=1, renders=1)
+    # the variance of a strategy that renders nothing is 0; of the whole image, positive
+    assert all(r["region_variance"] == 0.0 for r in grid.rows if r["energy"] == 0.0)
+
+
+def test_strategy_grid_image_is_the_plain_render_of_the_same_streams():
+    # asking for the strategies changes no draw: the grid's image is plain BDPT on the same streams
+    grid = cmp.measure_strategy_grid("cornell-caustic", res=RES, spp=2, renders=2, seed=7)
+    sc = load_scene("cornell-caustic")
+    images = [compare_args._render(sc, integrator="bdpt", spp=2, res=RES, max_depth=4, rng=stream,
+                                   progress=False).image
+              for stream in cmp._seed_sequence("strategies", "cornell-caustic", 7).spawn(2)]
+    np.testing.assert_allclose(grid.image, np.mean(images, axis=0), rtol=1e-12, atol=1e-15)
+
+
+def test_radiosity_second_view_from_the_solve_equals_a_fresh_solve_of_that_view(tmp_path):
+    from dataclasses import replace
+    from functools import partial
+
+    from mcvar.experiments.equal_time import _prepared
+
+    views = cmp.radiosity_views("cornell", res=RES, seed=2, cache_dir=tmp_path, reference_spp=8)
+    sc = load_scene("cornell")
+    sc2 = replace(sc, camera=views["camera"])
+    entry = METHODS["radiosity"]
+    opts = entry.resolve_options(cmp._options("radiosity"))
+    # solved afresh *from the second camera's scene*: the same solve, so the same image of that view
+    solve = entry.prepare(sc2, opts, np.random.default_rng(cmp._seed_sequence("radiosity", "cornell", 2)))
+    fresh = compare_args._render(sc2, integrator=replace(entry, prepare=partial(_prepared, solve)), spp=4, res=RES,
+                                 rng=cmp._seed_sequence("view2", 2))
+    np.testing.assert_array_equal(fresh.image, views["images"][1])
+    assert not np.array_equal(views["images"][0], views["images"][1])      # a different view indeed
+    assert 0 < views["view2_seconds"] < views["full_seconds"]
+    assert views["fraction"] == pytest.approx(views["view2_seconds"] / views["full_seconds"], rel=1e-12)
+    assert views["mse2"] == pytest.approx(np.mean((views["images"][1] - views["references"][1]) ** 2), rel=1e-12)
+
+
+def test_forward_tracing_without_the_camera_connection_never_hits_the_pinhole():
+    f = cmp.forward_pinhole_hits("cornell-point", n_paths=4096, seed=1, radii=(10.0, 100.0, 1000.0))
+    assert f["hits"] == 0 and f["energy_fraction"] == 0.0
+    assert f["rays"] > f["paths"] and f["escaping"] > 0       # rays leave the box, towards the camera too
+    assert f["closest"] > 0
+    within = list(f["within"].values())
+    assert within == sorted(within) and within[-1] > 0       # more rays pass within a larger radius
+
+
+def test_distance_of_the_pinhole_from_rays_is_the_brute_force_minimum():
+    from mcvar.experiments.slide_pairs import _distance_to_rays
+
+    rng = np.random.default_rng(4)
+    a, c = rng.normal(size=(50, 3)), rng.normal(size=3)
+    d = rng.normal(size=(50, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    length = rng.uniform(0.1, 3.0, 50)
+    u = np.linspace(0, 1, 20001)
+    brute = np.array([np.linalg.norm(a[i] + d[i] * (length[i] * u)[:, None] - c, axis=1).min() for i in range(50)])
+    np.testing.assert_allclose(_distance_to_rays(c, a, d, length), brute, rtol=0, atol=2e-4)
+    # a ray aimed at the pinhole passes through it
+    towards = (c - a[0]) / np.linalg.norm(c - a[0])
+    assert _distance_to_rays(c, a[:1], towards[None], np.array([np.inf]))[0] < 1e-12
+
+
+def test_the_pairs_write_their_files_and_sections(tmp_path):
+    pairs = cmp.measure_pairs(seconds=0.05, res=RES, seeds=1, cache_dir=tmp_path, progress=False,
+                              pairs=["bdpt caustic"], reference_spp={"cornell-caustic": 8})
+    grid = cmp.measure_strategy_grid(res=RES, spp=1, renders=2)
+    forward = cmp.forward_pinhole_hits(n_paths=512)
+    paths = write_compare(pairs["bdpt caustic"], tmp_path / "out", pairs=pairs, grid=grid, forward=forward)
+    rows = _read(paths["strategies"])
+    assert [(int(r["s"]), int(r["t"])) for r in rows] == [(r["s"], r["t"]) for r in grid.rows]
+    assert float(rows[0]["share"]) == pytest.approx(grid.rows[0]["share"], rel=1e-12)
+    assert paths["strategies_png"].stat().st_size > 0
+    assert {r["quantity"]: r["value"] for r in _read(paths["forward"])}["hits"] == "0"
+    page = paths["html"].read_text()
+    assert "strategies on cornell-caustic" in page and "pass through the pinhole" in page
+    assert {r["method"] for r in _read(paths["pairs"])} == {"path", "bdpt"}

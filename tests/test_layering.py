@@ -41,7 +41,7 @@ LEAF_PACKAGES = {"integrators"}
 # not been written yet (its test fails once it is a package on disk).
 PACKAGE_ORDER = {
     "estimators": ["monte_carlo", "mis", "studies", "__init__"],
-    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "compare", "__init__"],
+    "experiments": ["targets", "denoising", "runs", "reference", "analysis", "sweeps", "chart", "compare_args", "scene_references", "equal_time", "compare_matrix", "view_independence", "slide_pairs", "compare", "__init__"],
     "testing": ["_domains", "_chi2", "checks", "mutants", "bugs", "grade", "exercises", "__init__"],
     "scenefile": ["xml", "mesh", "props", "lights", "build", "write", "__init__"],
     "interop": ["mitsuba", "__init__"],

@@ -16,6 +16,9 @@ from mcvar import mcmc
 from mcvar.estimators import Estimate
 from mcvar.mcmc import (Chain, batch_means_time, correlated_estimate, image_walk, integrated_time, metropolis,
                         tv_distance)
+from mcvar.testing import sidak_significance
+
+import chain_balance  # tests/chain_balance.py
 
 TWO_PI = 2.0 * np.pi
 
@@ -266,3 +269,21 @@ def test_expected_value_splatting_beats_plain_splatting(camera64):
         plain.append(tv_distance(p.histogram, camera64))
         expected.append(tv_distance(e.histogram, camera64))
     assert stats.ttest_rel(plain, expected, alternative="greater").pvalue < 1e-3, (plain, expected)
+
+
+# -- detailed balance of the Kelemen step (issue 22) ---------------------------------------------
+
+@pytest.mark.parametrize("sigma,p_large", [(0.1, 0.3), (0.02, 0.0)])
+def test_walk_step_keeps_detailed_balance_and_the_target(sigma, p_large):
+    """One step of mcmc's walk (Kelemen's mutation, min(1, f(y)/f(x)), the move) from 200 000
+    chains started exactly on f = 4 u0 u1: transitions between the cells symmetric (Bowker),
+    the states still distributed as f (chi-square); Sidak over the 4 tests
+    (tests/chain_balance.py; a mutation that clips instead of wrapping fails both)."""
+    rng = np.random.default_rng(4041)
+    x = chain_balance.exact_samples(200_000, rng)
+    samples, _, accepted, _, done = mcmc._walk(lambda u: (chain_balance.target(u), None),
+                                               (x, chain_balance.target(x), None), 1, (sigma, p_large), rng)
+    assert done == 1 and 0.05 < accepted.mean() < 1.0
+    alpha = sidak_significance(1e-3, 4)
+    assert chain_balance.bowker_pvalue(x, samples[0]) > alpha
+    assert chain_balance.stationarity_pvalue(samples[0]) > alpha

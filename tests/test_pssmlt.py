@@ -1,4 +1,5 @@
-"""PSSMLT (issue 12): agreement with path tracing, consistency, start-up bias; cornell-door."""
+"""PSSMLT (issues 12, 22): agreement with path tracing, consistency, start-up bias, detailed balance of the
+lockstep step, the bootstrap's b, workers; cornell-door."""
 import math
 
 import numpy as np
@@ -7,9 +8,12 @@ from scipy import stats
 
 from mcvar.envmap import LUMINANCE_WEIGHTS
 from mcvar.integrators import METHODS, render
-from mcvar.integrators.pssmlt import OPTIONS, _path_function, pssmlt_film, state_dim
+from mcvar.integrators.pssmlt import OPTIONS, _Chains, _path_function, pssmlt_film, state_dim
 from mcvar.scene import load_scene
+from mcvar.testing import sidak_significance
 from mcvar.tracer import Tracer
+
+import chain_balance  # tests/chain_balance.py
 
 
 def render_pssmlt(scene, **kw):
@@ -138,3 +142,72 @@ def test_cornell_door_geometry_and_light_only_through_the_slit():
     w, n = wide.image.mean(), narrow.image.mean()
     se = math.hypot(*(np.sqrt((r.variance / r.spp).sum()) / r.image.size for r in (wide, narrow)))
     assert w - n > 5 * se, (w, n, se)
+
+
+# -- the lockstep step, the bootstrap's b, workers (issue 22) ------------------------------------
+
+ALPHA = 1e-3
+
+
+def _analytic_target(yT):
+    """``_Chains``' target protocol on the analytic density of tests/chain_balance.py."""
+    f = chain_balance.target(yT.T)
+    return f, np.zeros(f.shape[0], dtype=np.intp), np.zeros((3, f.shape[0]))
+
+
+@pytest.mark.parametrize("sigma,p_large", [(0.1, 0.3), (0.02, 0.0)])
+def test_lockstep_step_keeps_detailed_balance_and_the_target(sigma, p_large):
+    """One step of 200 000 chains started exactly on f = 4 u0 u1 (pssmlt's own mutation,
+    acceptance and move): the transitions between 16 cells are symmetric (Bowker) and the
+    states after the step are still distributed as f (chi-square); Sidak over the 4 tests."""
+    rng = np.random.default_rng(20261202)
+    x = chain_balance.exact_samples(200_000, rng)
+    chains = _Chains(np.ascontiguousarray(x.T), chain_balance.target(x), np.zeros(len(x), dtype=np.intp),
+                     np.zeros((3, len(x))))
+    before = chains.xT.T.copy()
+    prop = chains.propose(_analytic_target, sigma, p_large, rng)
+    chains.move(prop)
+    after = chains.xT.T
+    assert 0.05 < prop.accept.mean() < 1.0                       # the step moves chains
+    alpha = sidak_significance(ALPHA, 4)
+    assert chain_balance.bowker_pvalue(before, after) > alpha
+    assert chain_balance.stationarity_pvalue(after) > alpha
+
+
+def test_image_mean_luminance_is_b_and_b_agrees_with_path_tracing(cornell):
+    """Identity: every step splats luminance 1 in all (1 - a + a), so the image's mean
+    luminance is b exactly (both splats). And b, the mean of f over the run's iid uniform
+    states, agrees with path tracing's image mean luminance within 5 standard errors
+    (8 independent path renders for its error)."""
+    for splat in ("expected", "plain"):
+        run = pssmlt_film(cornell, (8, 8), 32, rng=5150, chains=512, splat=splat)
+        image = run.sum / run.spp
+        assert (image @ LUM).mean() == pytest.approx(run.b, rel=1e-12)
+        assert run.n_b > run.n_bootstrap > 0 and run.b_stderr > 0
+    lum = [render(cornell, spp=64, res=8, rng=s).image @ LUM for s in np.random.SeedSequence(77).spawn(8)]
+    means = np.array([m.mean() for m in lum])
+    se_path = means.std(ddof=1) / math.sqrt(len(means))
+    assert abs(run.b - means.mean()) < 5 * math.hypot(run.b_stderr, se_path), (run.b, run.b_stderr, means)
+
+
+def test_workers_and_seed_give_the_same_image(cornell):
+    """The image is a pure function of the seed: two workers (processes), one worker and a
+    second run with the same seed give identical images and diagnostics."""
+    kw = dict(integrator="pssmlt", spp=8, res=8, batch_spp=2, chains=64, rng=31337)
+    one, two, again = render(cornell, **kw), render(cornell, workers=2, **kw), render(cornell, **kw)
+    np.testing.assert_array_equal(one.image, two.image)
+    np.testing.assert_array_equal(one.image, again.image)
+    for key in one.extra:
+        np.testing.assert_array_equal(one.extra[key], two.extra[key])
+
+
+def test_diagnostics_of_a_run(cornell):
+    """The film's diagnostics: acceptance in (0, 1), 1 <= tau <= n_steps (up to the
+    estimate's noise) and ESS = N / tau; the render reports them per batch."""
+    run = pssmlt_film(cornell, (8, 8), 64, rng=99, chains=256)
+    assert run.chains == 256 and run.n_steps == 16 and 0 < run.acceptance_rate < 1
+    for name in ("luminance", "film_x", "film_y"):
+        assert 0.5 < run.tau[name] < 2 * run.n_steps
+        assert run.ess[name] == pytest.approx(run.chains * run.n_steps / run.tau[name])
+    r = render_pssmlt(cornell, spp=8, res=8, rng=3, chains=64)
+    assert {"b", "b_stderr", "acceptance_rate", "tau", "ess_fraction"} <= set(r.extra)

@@ -126,6 +126,11 @@ def test_demo_runs_its_settings(tmp_path, monkeypatch, capsys):
     assert "Rendering Algorithm Chart, measured" in page and "<td>path</td><td>Path Tracing</td>" in page
     assert (tmp_path / "chart" / "chart.csv").read_text().startswith(
         "method,lecture_consistent,lecture_unbiased,consistent,unbiased,mse_x_time,note")
+    # the equal-time comparison is linked: its command before it ran, its page once written
+    assert "Choosing a method" in page and "docs/compare.md" in page and "mcvar compare --pairs" in page
+    (tmp_path / "compare").mkdir()
+    (tmp_path / "compare" / "compare.html").write_text("<html></html>")
+    assert "href='compare/compare.html'" in mcvar.demo.compare_link(tmp_path)
 
 
 def test_cli_converge_uses_a_user_supplied_reference(tmp_path, capsys):

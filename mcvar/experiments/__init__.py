@@ -23,8 +23,13 @@ consistent method), :mod:`~mcvar.experiments.runs` (streams, executors, caches),
 :mod:`~mcvar.experiments.reference`, :mod:`~mcvar.experiments.analysis`
 (metrics, fits, verdicts), :mod:`~mcvar.experiments.sweeps`,
 :mod:`~mcvar.experiments.chart` (the lecture's rendering-methods chart, measured),
-:mod:`~mcvar.experiments.compare` (every method on every scene at equal time). Every public
-name is importable from ``mcvar.experiments`` itself.
+and the equal-time comparison of issue 21: :mod:`~mcvar.experiments.compare_args` (its scenes,
+methods and options), :mod:`~mcvar.experiments.scene_references` (one cached reference per scene),
+:mod:`~mcvar.experiments.equal_time` (one method for a given wall time),
+:mod:`~mcvar.experiments.compare_matrix` (the matrix), :mod:`~mcvar.experiments.view_independence`
+(radiosity's two views of one solve), :mod:`~mcvar.experiments.slide_pairs` (the lecture's pairs,
+BDPT's strategy grid) and :mod:`~mcvar.experiments.compare`, which gathers their public names.
+Every public name is importable from ``mcvar.experiments`` itself.
 """
 from .targets import Target, integrand_target, lecture_target, load_target, make_target, parse_method, scene_target
 from .denoising import DENOISE_SUFFIX, denoise_tv, denoise_weight, denoised_target, photo_target

@@ -399,8 +399,14 @@ def camera_subpath(scene, tracer, res, pixel, offsets, max_vertices, rng, roulet
     return lev.stack(length, np.full(n, -1), np.asarray(pixel), rays)
 
 
-def light_subpath(scene, tracer, origins: LightOrigins, n, max_vertices, rng, roulette=False) -> Subpath:
+def light_subpath(scene, tracer, origins: LightOrigins, n, max_vertices, rng, roulette=False,
+                  escape=False) -> Subpath:
     """Light subpaths ``y_0 .. y_{s-1}`` from :meth:`LightOrigins.sample`.
+
+    With ``escape`` a ray that leaves the scene ends its subpath in a vertex
+    at infinity (``infinite``, ``ng`` its direction), as camera subpaths do
+    under an environment map: forward tracing without the camera connection
+    (:func:`mcvar.experiments.slide_pairs.forward_pinhole_hits`) reads them.
 
     An environment origin is a vertex at infinity (``infinite``; pbrt-v4's
     infinite lights in BDPT): ``y_0`` stands for the direction ``w``
@@ -435,7 +441,7 @@ def light_subpath(scene, tracer, origins: LightOrigins, n, max_vertices, rng, ro
     if max_vertices > 1:
         eps = float(scene.ray_epsilon)
         o = s["p"] + s["n"] * eps
-        ws = _Walk(scene, tracer, _flips(scene), max_vertices, roulette)
+        ws = _Walk(scene, tracer, _flips(scene), max_vertices, roulette, escape)
         length, rays = _walk(ws, lev, 1, o, s["w"], beta, s["pdf_dir"], rng)
         if np.any(env) and len(lev.levels) > 1:
             _at_infinity(lev, np.flatnonzero(env), origins.env_pdf_pos, eps)

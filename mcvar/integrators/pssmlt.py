@@ -6,10 +6,12 @@ al. [1]_ and pbrt's MLT integrator [2]_: the Markov chain of
 uniform numbers the path tracer turns into one camera path
 (:func:`mcvar.integrators.trace_camera_paths`), and its target is the
 luminance of that path's contribution. Every step splats the current and the
-proposed path onto the film (expected-value splatting); the bootstrap's ``b``
-(mean luminance of the image) sets the scale. Each batch of a render is an
-independent PSSMLT run (its own bootstrap and chains), so the film's
-variance comes from independent batches.
+proposed path onto the film (expected-value splatting); ``b``, the mean
+luminance of the image estimated from the run's independent uniform states
+(the bootstrap's and the large steps'), sets the scale. Up to
+:data:`CHAIN_CHUNK` chains step in lockstep: one wavefront of paths per step.
+Each batch of a render is an independent PSSMLT run (its own bootstrap and
+chains), so the film's variance comes from independent batches.
 
 State
 -----
@@ -35,31 +37,45 @@ References
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validation import as_rng, check_bool, check_choice, check_count, check_positive, check_probability, settings_with
+from .._validation import as_rng, check_bool, check_budget, check_choice, check_count, check_positive, check_probability, settings_with
 from ..envmap import LUMINANCE_WEIGHTS
-from ..mcmc import _evaluate_chunked, _walk, check_walk_budget
+from ..mcmc import BOOTSTRAP_CHUNK, check_walk_budget
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
 from .path import trace_camera_paths
 from .registry import Method, register
+from .settings import PathSettings
 from .stream import CAMERA_DIMS, stream_dim
 
-__all__ = ["OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_film", "state_dim", "run_batch"]
+__all__ = ["CHAIN_CHUNK", "OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_film", "state_dim", "run_batch"]
 
 #: The method's options and defaults. ``sigma`` and ``p_large`` as pbrt-v4
-#: (0.01, 0.3); 4096 chains run at once (a wavefront of 4096 paths per step:
-#: measured on cornell-door 32 x 32, 3-4x the speed of 1024 chains at equal
-#: MSE); ``n_bootstrap=None``: ``max(4 * chains, mutations // 4)`` paths;
-#: ``state_depth``: path segments whose numbers are in the chain's state.
-OPTIONS = {"chains": 4096, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None,
+#: (0.01, 0.3); ``chains``: 65 536 chains, one lockstep chunk
+#: (:data:`CHAIN_CHUNK`), so a step traces as many paths per bounce as a
+#: path-tracing batch (docs/mcmc.md, 'Many chains in lockstep', for the
+#: chain-count trade); ``n_bootstrap=None``: ``max(4 * chains, mutations // 4)``
+#: paths; ``state_depth``: path segments whose numbers are in the chain's state.
+OPTIONS = {"chains": 1 << 16, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None,
            "bootstrap": True, "splat": "expected", "state_depth": 6}
 
+#: Bytes a chain keeps outside its chunk's step: its bootstrap pick and the
+#: per-chain means of the diagnostics' observables.
+BYTES_PER_CHAIN = 8 * 4
+
 _LUM = np.asarray(LUMINANCE_WEIGHTS)
+
+#: Chains stepped in lockstep at once: one wavefront of at most this many
+#: paths per bounce (the path tracer's batch,
+#: :data:`mcvar.integrators.allocation.PATHS_PER_BATCH`), so a
+#: bounce iteration serves as many paths as it does for path tracing; more
+#: chains run as further chunks of this size, one after the other (memory
+#: bounded by the chunk, not by ``chains``).
+CHAIN_CHUNK = 1 << 16
 
 
 def state_dim(state_depth: int, max_depth: int | None = None) -> int:
@@ -72,7 +88,7 @@ def state_dim(state_depth: int, max_depth: int | None = None) -> int:
 
 @dataclass(frozen=True)
 class PssmltFilm:
-    """One PSSMLT run: ``image = sum / spp`` (the :class:`BatchResult` convention).
+    """One PSSMLT run: ``image = sum / spp`` (the :class:`BatchResult` convention), and its diagnostics.
 
     Attributes
     ----------
@@ -83,10 +99,27 @@ class PssmltFilm:
     rays : int
         Rays traced, bootstrap included.
     b, b_stderr : float
-        The bootstrap's estimate of the image's mean luminance and its error.
+        The estimate of ``b = ∫ f``, the image's mean luminance, and its
+        standard error: the mean of ``f`` over the ``n_b`` independent uniform
+        states of the run (the bootstrap's and every large step's proposal,
+        Kelemen 2002 section 4), ``s / sqrt(n_b)``.
+    n_b : int
+        Those states.
     acceptance_rate : float
+        Accepted proposals over all proposals.
     interrupted : bool
         Ctrl-C stopped the chains early (``spp`` counts the finished steps).
+    chains, n_steps : int
+        Chains run (in chunks of :data:`CHAIN_CHUNK`) and steps per chain.
+    n_bootstrap : int
+        Bootstrap paths traced.
+    tau : dict
+        Integrated autocorrelation time of the run, in steps, per observable
+        of the state after each step: ``'luminance'`` (``f``), ``'film_x'``,
+        ``'film_y'`` (the film position); see :func:`pssmlt_film`, Notes.
+        NaN where an observable is constant.
+    ess : dict
+        Effective sample size ``chains * n_steps / tau`` per observable.
     """
 
     sum: np.ndarray
@@ -96,37 +129,156 @@ class PssmltFilm:
     b_stderr: float
     acceptance_rate: float
     interrupted: bool = False
+    chains: int = 0
+    n_steps: int = 0
+    n_bootstrap: int = 0
+    n_b: int = 0
+    tau: dict = field(default_factory=dict)
+    ess: dict = field(default_factory=dict)
+
+
+class _PathTarget:
+    """The chain's target on the state's columns: ``f`` = luminance of the camera path's RGB.
+
+    ``self(yT)`` takes a wavefront of states ``(D, n)`` (C-contiguous, film
+    position in rows 0-1) and returns ``(f (n,), pixel (n,), rgb / f (3, n))``
+    (``rgb / f = 0`` where ``f = 0``); ``rays`` counts what it traced. The
+    state's rows 0-1 are turned into the offset inside the pixel for the
+    tracer and restored (no copy of the state: the tracer's sample stream
+    reads the transposed view of ``yT`` as is).
+    """
+
+    def __init__(self, scene, res, tracer, settings: PathSettings, rng):
+        self.scene, self.res, self.tracer, self.settings, self.rng = scene, res, tracer, settings, rng
+        self.rays = 0
+
+    def __call__(self, yT):
+        width, height = self.res
+        film = yT[:2].copy()
+        col = np.minimum((film[0] * width).astype(np.intp), width - 1)
+        row = np.minimum((film[1] * height).astype(np.intp), height - 1)
+        try:
+            yT[0] = film[0] * width - col                    # the offset inside the pixel
+            yT[1] = film[1] * height - row
+            pix = row * width + col
+            radiance, rays = trace_camera_paths(self.scene, self.res, pix, yT.T, rng=self.rng,
+                                                tracer=self.tracer, settings=self.settings, method="path")
+        finally:
+            yT[:2] = film
+        self.rays += rays
+        f = radiance @ _LUM
+        rgbn = np.divide(radiance.T, f, out=np.zeros((3, f.shape[0])), where=f > 0)
+        return f, pix, rgbn
 
 
 def _path_function(scene: Scene, res, tracer: Tracer, max_depth, heuristic, rng, counter):
-    """``evaluate(u (n, D)) -> (luminance (n,), payload (n, 4) = [pixel, r, g, b])``."""
-    width, height = res
+    """``evaluate(u (n, D)) -> (luminance (n,), payload (n, 4) = [pixel, r, g, b])``: the target
+    on row-major states (what :func:`mcvar.mcmc._evaluate_chunked` calls), through :class:`_PathTarget`."""
+    target = _PathTarget(scene, res, tracer, PathSettings(max_depth=max_depth, heuristic=heuristic), rng)
 
     def evaluate(u):
-        col = np.minimum((u[:, 0] * width).astype(np.intp), width - 1)
-        row = np.minimum((u[:, 1] * height).astype(np.intp), height - 1)
-        path_u = u.copy()
-        path_u[:, 0] = u[:, 0] * width - col                 # the offset inside the pixel
-        path_u[:, 1] = u[:, 1] * height - row
-        radiance, rays = trace_camera_paths(scene, res, row * width + col, path_u, integrator="path",
-                                            max_depth=max_depth, heuristic=heuristic, rng=rng, tracer=tracer)
-        counter[0] += rays
-        payload = np.empty((u.shape[0], 4))
-        payload[:, 0] = row * width + col
-        payload[:, 1:] = radiance
-        return radiance @ _LUM, payload
+        before = target.rays
+        f, pix, rgbn = target(np.ascontiguousarray(np.asarray(u, dtype=np.float64).T))
+        counter[0] += target.rays - before
+        payload = np.empty((f.shape[0], 4))
+        payload[:, 0] = pix
+        payload[:, 1:] = (rgbn * f).T
+        return f, payload
 
     return evaluate
 
 
-def _splat(film, n_pix, payload, weight):
-    """Add ``weight * rgb / luminance`` at each payload's pixel (0 where the weight is 0)."""
-    pix = payload[:, 0].astype(np.intp)
-    rgb = payload[:, 1:]
-    lum = rgb @ _LUM
-    w = np.divide(weight, lum, out=np.zeros_like(lum), where=(lum > 0) & (weight > 0))
-    for c in range(3):
-        film[:, c] += np.bincount(pix, weights=w * rgb[:, c], minlength=n_pix)
+def _normals(shape, scale: float, rng) -> np.ndarray:
+    """``scale`` times standard normals, float64 ``shape``, by Box-Muller from float32 uniforms
+    (each pair ``r cos t, r sin t`` is two independent normals; a quarter the time of
+    ``rng.standard_normal`` here, where the 32 numbers of 65 536 chains cost as much as
+    tracing their paths)."""
+    n = int(np.prod(shape))
+    half = (n + 1) // 2
+    u = rng.random((2, half), dtype=np.float32)
+    r = np.log1p(-u[0])                       # u < 1: finite
+    r *= -2.0
+    np.sqrt(r, out=r)
+    r *= np.float32(scale)
+    angle = u[1]
+    angle *= np.float32(2.0 * np.pi)
+    out = np.empty(2 * half)
+    np.multiply(r, np.cos(angle), out=out[:half])
+    np.multiply(r, np.sin(angle), out=out[half:])
+    return out[:n].reshape(shape)
+
+
+def _mutate_soa(xT, sigma: float, p_large: float, rng):
+    """Kelemen's mutation of states stored as columns ``(D, n)`` (:func:`mcvar.mcmc._mutate`'s
+    rule): a Gaussian small step of ``sigma`` wrapped on the torus, or with probability
+    ``p_large`` a uniform large step. Returns the proposals ``(D, n)`` and the large-step mask."""
+    yT = _normals(xT.shape, sigma, rng)
+    yT += xT
+    yT -= np.floor(yT)
+    large = rng.random(xT.shape[1]) < p_large
+    idx = np.flatnonzero(large)
+    if idx.size:
+        yT[:, idx] = rng.random((xT.shape[0], idx.size))
+    np.minimum(yT, np.nextafter(1.0, 0.0), out=yT)      # floor may round 1 - 1e-17 up to 1
+    return yT, large
+
+
+@dataclass(frozen=True, eq=False)
+class _Proposal:
+    """One lockstep step's proposals: states ``(D, m)``, their ``f``, pixel and ``rgb / f``, the
+    large-step mask, the acceptance probabilities ``a = min(1, f(y) / f(x))`` and the coin's verdicts."""
+
+    xT: np.ndarray
+    f: np.ndarray
+    pix: np.ndarray
+    rgbn: np.ndarray
+    large: np.ndarray
+    a: np.ndarray
+    accept: np.ndarray
+
+
+class _Chains:
+    """A chunk of chains stepped in lockstep: states ``xT`` (D, m), their ``f``, pixel and ``rgb / f``.
+
+    :meth:`propose` mutates every chain (Kelemen), evaluates all proposals in
+    one call of the target (one wavefront) and draws every accept/reject
+    coin; :meth:`move` applies the verdicts in place. The target is any
+    ``target(yT) -> (f, pixel, rgb / f)`` (the path tracer's
+    :class:`_PathTarget`, or an analytic density in the tests).
+    """
+
+    def __init__(self, xT, f, pix, rgbn):
+        self.xT, self.f, self.pix, self.rgbn = xT, f, pix, rgbn
+
+    def propose(self, target, sigma: float, p_large: float, rng) -> _Proposal:
+        yT, large = _mutate_soa(self.xT, sigma, p_large, rng)
+        fy, py, ry = target(yT)
+        a = np.minimum(1.0, fy / self.f)               # f > 0: chains only move to f > 0
+        return _Proposal(yT, fy, py, ry, large, a, rng.random(fy.shape[0]) < a)
+
+    def move(self, prop: _Proposal) -> None:
+        acc = prop.accept
+        np.copyto(self.xT, prop.xT, where=acc)
+        np.copyto(self.f, prop.f, where=acc)
+        np.copyto(self.pix, prop.pix, where=acc)
+        np.copyto(self.rgbn, prop.rgbn, where=acc)
+
+
+class _Splatter:
+    """The film of one run, ``(3, n_pix)`` flattened: one ``np.bincount`` per step and splat kind."""
+
+    def __init__(self, n_pix: int):
+        self.n_pix = n_pix
+        self.film = np.zeros(3 * n_pix)
+        self._channel = (np.arange(3) * n_pix)[:, None]
+
+    def add(self, pix, rgbn, weight) -> None:
+        """Add ``weight * rgb / f`` at each path's pixel (``rgbn`` (3, n), ``weight`` (n,) or a scalar)."""
+        idx = pix + self._channel                              # (3, n)
+        self.film += np.bincount(idx.ravel(), weights=(rgbn * weight).ravel(), minlength=self.film.size)
+
+    def image_sum(self, b: float) -> np.ndarray:
+        return (self.film.reshape(3, self.n_pix) * b).T.copy()
 
 
 @dataclass(frozen=True)
@@ -142,6 +294,103 @@ class PssmltSettings:
     bootstrap: bool = OPTIONS["bootstrap"]
     splat: str = OPTIONS["splat"]
     state_depth: int = OPTIONS["state_depth"]
+
+
+class _Moments:
+    """Per-chain sums of observables along the chains, for the run's autocorrelation time."""
+
+    def __init__(self):
+        self.chain_means = {}          # name -> list of (chunk,) arrays
+        self.sums = {}                 # name -> [sum, sum of squares, count]
+
+    def add_chunk(self, name, per_chain_sum, per_chain_sq, n_steps) -> None:
+        self.chain_means.setdefault(name, []).append(per_chain_sum / n_steps)
+        s = self.sums.setdefault(name, [0.0, 0.0, 0])
+        s[0] += float(per_chain_sum.sum())
+        s[1] += float(per_chain_sq.sum())
+        s[2] += per_chain_sum.shape[0] * n_steps
+
+    def tau(self, n_steps: int) -> dict:
+        """``tau = n_steps Var(chain means) / Var(h)`` per observable (NaN if ``h`` is constant)."""
+        out = {}
+        for name, parts in self.chain_means.items():
+            means = np.concatenate(parts)
+            total, sq, n = self.sums[name]
+            var = sq / n - (total / n) ** 2
+            ok = means.size > 1 and var > 1e-300
+            out[name] = float(n_steps * means.var(ddof=1) / var) if ok else float("nan")
+        return out
+class _Run:
+    """What one PSSMLT run accumulates over its chunks of chains: the film, the diagnostics'
+    moments, the acceptance count, and the sums that estimate ``b`` (the mean of ``f`` over
+    iid uniform states: the bootstrap's ``f`` values, then every large step's proposal)."""
+
+    def __init__(self, n_pix: int, expected: bool, f_bootstrap):
+        self.film = _Splatter(n_pix)
+        self.moments = _Moments()
+        self.expected = expected
+        self.n_acc = self.done = 0
+        self._b = [float(f_bootstrap.sum()), float(f_bootstrap @ f_bootstrap), f_bootstrap.shape[0]]
+
+    def chunk(self, chains: "_Chains", n_steps: int, target, mutation, rng) -> None:
+        """Step one chunk of chains ``n_steps`` times in lockstep, splatting every step."""
+        sigma, p_large = mutation
+        film = self.film
+        m = chains.f.shape[0]
+        sums = {name: np.zeros(m) for name in ("luminance", "film_x", "film_y")}
+        squares = {name: np.zeros(m) for name in sums}
+        for _ in range(n_steps):
+            prop = chains.propose(target, sigma, p_large, rng)
+            f_large = prop.f[prop.large]
+            self._b[0] += float(f_large.sum())
+            self._b[1] += float(f_large @ f_large)
+            self._b[2] += f_large.size
+            if self.expected:
+                film.add(chains.pix, chains.rgbn, 1.0 - prop.a)
+                film.add(prop.pix, prop.rgbn, prop.a)
+            chains.move(prop)
+            if not self.expected:
+                film.add(chains.pix, chains.rgbn, 1.0)
+            for name, h in (("luminance", chains.f), ("film_x", chains.xT[0]), ("film_y", chains.xT[1])):
+                sums[name] += h
+                squares[name] += h * h
+            self.n_acc += int(prop.accept.sum())
+            self.done += m
+        for name in sums:
+            self.moments.add_chunk(name, sums[name], squares[name], n_steps)
+
+    def b(self):
+        """``(b, its standard error, the number of iid states)``."""
+        total, sq, n = self._b
+        b = total / n
+        return b, float(np.sqrt(max(sq / n - b * b, 0.0) / max(n - 1, 1))), n
+
+
+def _bootstrap(target, dim, chains, n_bootstrap, starts: bool, rng):
+    """One shared bootstrap: ``n_bootstrap`` uniform states, ``b``'s first terms, and the
+    chains' starting candidates (resampled ``∝ f``, or uniformly among the lit ones).
+
+    Returns ``(candidates (dim, n_bootstrap), f, pixel, rgb / f, pick (chains,))``: the
+    candidates as columns, the layout of the chains' states (a chunk's starts are one gather).
+    """
+    cand = rng.random((dim, n_bootstrap))
+    fc = np.empty(n_bootstrap)
+    pc = np.empty(n_bootstrap, dtype=np.intp)
+    rc = np.empty((3, n_bootstrap))
+    for a in range(0, n_bootstrap, BOOTSTRAP_CHUNK):
+        z = slice(a, a + BOOTSTRAP_CHUNK)
+        part = cand if n_bootstrap <= BOOTSTRAP_CHUNK else np.ascontiguousarray(cand[:, z])
+        fc[z], pc[z], rc[:, z] = target(part)
+    total = fc.sum()
+    if not total > 0.0:
+        raise ValueError(f"none of the {n_bootstrap} bootstrap paths carries light: cannot start the "
+                         "chains (raise n_bootstrap)")
+    if starts:
+        pick = rng.choice(n_bootstrap, size=chains, p=fc / total)
+    else:
+        lit = np.flatnonzero(fc > 0)
+        pick = lit[rng.integers(0, lit.size, size=chains)]
+    return cand, fc, pc, rc, pick
 
 
 def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings: PssmltSettings | None = None,
@@ -166,31 +415,43 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         As in :func:`mcvar.integrators.trace_camera_paths` (``max_depth=None``:
         Russian roulette).
     chains : int
-        Chains run at once (one vectorised wavefront of ``chains`` paths per
-        step); capped at ``spp * W * H``.
+        Chains (capped at ``spp * W * H``), stepped in lockstep
+        :data:`CHAIN_CHUNK` at a time: every chain of a chunk proposes, all
+        proposals are traced as one wavefront, every chain accepts or
+        rejects; then the next chunk, from the same bootstrap.
     sigma : float
         Kelemen's small-step size (:func:`mcvar.mcmc.metropolis`).
     p_large : float
         Probability of a large step (a fresh uniform state).
     n_bootstrap : int or None
-        Independent paths that estimate ``b`` and seed the chains; None:
-        ``max(4 * chains, N // 4)`` for ``N`` mutations (pbrt uses 100 000
-        for images of ~10^8 mutations; here images are small, so the
-        bootstrap is a fixed fraction of the work; its relative error in
-        ``b``, a global scale on the image, is ``sqrt(4 / N)`` times the
-        coefficient of variation of ``f``).
+        Independent paths that estimate ``b`` and seed the chains, shared by
+        all chunks; None: ``max(4 * chains, N // 4)`` for ``N``
+        mutations (pbrt uses 100 000 for images of ~10^8 mutations). The
+        resampling gives about ``n_bootstrap / (1 + CV^2)`` distinct starts
+        (``CV``: the coefficient of variation of ``f``, about 24 on
+        cornell-door), so a bootstrap several times the chains pays: measured
+        at equal time on cornell-door, 4 chains' worth beat a quarter or a
+        sixteenth of the mutations (docs/mcmc.md).
+        Fewer candidates than chains is allowed: chains that draw the same
+        start part after their first steps.
     bootstrap : bool
         True: start the chains at bootstrap paths resampled ``∝ f`` (no
         start-up bias). False: start each at a uniformly drawn bootstrap
         path with ``f > 0`` (start-up bias: the first ~tau steps of each
         chain follow that distribution, not ``f / b``). ``b`` comes from the
-        bootstrap paths in both cases.
+        bootstrap and the large steps in both cases.
     splat : {'expected', 'plain'}
         Expected-value splatting (current with ``1 - a``, proposal with
         ``a``) or the state after each step.
     state_depth : int
         Path segments whose random numbers are in the state (see the module
         docstring); dimensions beyond are fresh iid.
+
+    Returns
+    -------
+    PssmltFilm
+        The splats and the run's diagnostics (acceptance rate, ``b`` and its
+        standard error, autocorrelation time and effective sample size).
 
     Notes
     -----
@@ -220,63 +481,59 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     length is cut off: the estimate stays consistent (Russian roulette
     included). With ``max_depth <= state_depth`` every path is a pure
     function of the state.
+
+    **Diagnostics.** The chains start (nearly) in the stationary
+    distribution and are independent given the bootstrap, so the variance
+    of the run's mean of an observable ``h`` is ``Var(h) tau / N`` with
+    ``tau = n_steps Var(chain means of h) / Var(h)`` (batch means, one batch
+    per chain: right for short chains, where a lag window cannot be fitted;
+    ``tau`` counts the correlation within the run's ``n_steps``, so it is at
+    most ``n_steps``). ``ESS = N / tau``.
     """
     opts = settings_with(PssmltSettings, settings, options, "pssmlt_film")
-    max_depth, heuristic, chains, sigma, p_large = (opts.max_depth, opts.heuristic, opts.chains, opts.sigma,
-                                                    opts.p_large)
-    n_bootstrap, bootstrap, splat, state_depth = opts.n_bootstrap, opts.bootstrap, opts.splat, opts.state_depth
     rng = as_rng(rng)
     width, height = res
     n_pix = width * height
     if not (np.isfinite(spp) and spp > 0):
         raise ValueError(f"spp must be finite and > 0; got {spp}")
-    chains = check_count(chains, "chains")
-    sigma = check_positive(sigma, "sigma")
-    p_large = check_probability(p_large, "p_large")
-    check_choice(splat, "splat", ("expected", "plain"))
-    check_bool(bootstrap, "bootstrap")
-    dim = state_dim(state_depth, max_depth)
+    chains = check_count(opts.chains, "chains")
+    sigma = check_positive(opts.sigma, "sigma")
+    p_large = check_probability(opts.p_large, "p_large")
+    check_choice(opts.splat, "splat", ("expected", "plain"))
+    check_bool(opts.bootstrap, "bootstrap")
+    dim = state_dim(opts.state_depth, opts.max_depth)
     n_mut = max(1, int(round(spp * n_pix)))
     chains = min(chains, n_mut)
     n_steps = -(-n_mut // chains)
+    n_bootstrap = opts.n_bootstrap
     if n_bootstrap is None:
         n_bootstrap = max(4 * chains, n_mut // 4)
     n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
-    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth", dim_value=state_depth)
+    chunk = min(chains, CHAIN_CHUNK)
+    _check_memory(dim, chains, n_bootstrap, opts.state_depth)
     tracer = tracer if tracer is not None else Tracer(scene)
-    counter = [0]
-    evaluate = _path_function(scene, res, tracer, max_depth, heuristic, rng, counter)
-
-    cand = rng.random((n_bootstrap, dim))
-    fc, pc = _evaluate_chunked(evaluate, cand)
-    total = fc.sum()
-    if not total > 0.0:
-        raise ValueError(f"none of the {n_bootstrap} bootstrap paths carries light: cannot start the "
-                         "chains (raise n_bootstrap)")
-    b = fc.mean()
-    b_se = fc.std(ddof=1) / np.sqrt(n_bootstrap)
-    if bootstrap:
-        pick = rng.choice(n_bootstrap, size=chains, p=fc / total)
-    else:
-        lit = np.flatnonzero(fc > 0)
-        pick = lit[rng.integers(0, lit.size, size=chains)]
-    x, fx, px = cand[pick], fc[pick], pc[pick]
-
-    film = np.zeros((n_pix, 3))
-    if splat == "expected":
-        def visit(x, fx, px, y, fy, py, a, acc):
-            _splat(film, n_pix, px, 1.0 - a)
-            _splat(film, n_pix, py, a)
-    else:
-        def visit(x, fx, px, y, fy, py, a, acc):
-            _splat(film, n_pix, np.where(acc[:, None], py, px), np.ones(acc.shape[0]))
-
-    _, _, _, n_acc, n_done = _walk(evaluate, (x, fx, px), n_steps, (sigma, p_large), rng, visit=visit,
-                                   thin=n_steps)
-    done = chains * n_done / n_pix
+    target = _PathTarget(scene, res, tracer, PathSettings(max_depth=opts.max_depth, heuristic=opts.heuristic),
+                         rng)
+    cand, fc, pc, rc, pick = _bootstrap(target, dim, chains, n_bootstrap, opts.bootstrap, rng)
+    run = _Run(n_pix, opts.splat == "expected", fc)
+    interrupted = False
+    try:
+        for first in range(0, chains, chunk):
+            sel = pick[first:first + chunk]
+            run.chunk(_Chains(np.take(cand, sel, axis=1), fc[sel], pc[sel], np.take(rc, sel, axis=1)),
+                      n_steps, target, (sigma, p_large), rng)
+    except KeyboardInterrupt:
+        if run.done == 0:
+            raise
+        interrupted = True                 # keep the finished steps
+    b, b_se, b_n = run.b()
+    moments, done, n_acc, film = run.moments, run.done, run.n_acc, run.film
+    tau = moments.tau(n_steps)
+    ess = {name: done / t if t > 0 else float("nan") for name, t in tau.items()}
     # image = b / spp * film  ->  sum = b * film, so that sum / spp is the image
-    return PssmltFilm(sum=film * b, spp=done, rays=counter[0], b=float(b), b_stderr=float(b_se),
-                      acceptance_rate=n_acc / (chains * n_done), interrupted=n_done < n_steps)
+    return PssmltFilm(sum=film.image_sum(b), spp=done / n_pix, rays=target.rays, b=b, b_stderr=b_se,
+                      acceptance_rate=n_acc / max(done, 1), interrupted=interrupted, chains=chains,
+                      n_steps=n_steps, n_bootstrap=n_bootstrap, n_b=b_n, tau=tau, ess=ess)
 
 
 def run_batch(job: BatchJob) -> BatchResult:
@@ -289,8 +546,22 @@ def run_batch(job: BatchJob) -> BatchResult:
                       heuristic=job.heuristic, tracer=job.tracer, **job.options)
     if run.interrupted:
         raise KeyboardInterrupt
-    extra = {"b": np.array([run.b * job.spp]), "acceptance_rate": np.array([run.acceptance_rate * job.spp])}
+    # the render's extra: spp-weighted means over its batches (Render.extra)
+    extra = {"b": np.array([run.b * job.spp]), "b_stderr": np.array([run.b_stderr * job.spp]),
+             "acceptance_rate": np.array([run.acceptance_rate * job.spp]),
+             "tau": np.array([run.tau["luminance"] * job.spp]),
+             "ess_fraction": np.array([run.ess["luminance"] / (run.spp * job.res[0] * job.res[1]) * job.spp])}
     return BatchResult(sum=run.sum * (job.spp / run.spp), sum_sq=None, rays=run.rays, extra=extra)
+
+
+def _check_memory(dim: int, chains: int, n_bootstrap, state_depth) -> None:
+    """The run's memory against the budget before anything is traced: the bootstrap's candidates and
+    one chunk's step (:func:`mcvar.mcmc.check_walk_budget`), and every chain's bookkeeping."""
+    check_walk_budget(dim, min(chains, CHAIN_CHUNK), n_bootstrap, payload_words=4, dim_name="state_depth",
+                      dim_value=state_depth)
+    check_budget(f"chains={chains!r} with state_depth={state_depth!r}", None, chains * float(BYTES_PER_CHAIN),
+                 per_unit=BYTES_PER_CHAIN, unit_name="chains",
+                 what=f"the bootstrap picks and diagnostics of {chains} chains")
 
 
 def _check_options(scene, options) -> None:
@@ -303,8 +574,7 @@ def _check_options(scene, options) -> None:
     check_bool(options["bootstrap"], "bootstrap")
     dim = state_dim(check_count(options["state_depth"], "state_depth"))
     n_bootstrap = None if options["n_bootstrap"] is None else check_count(options["n_bootstrap"], "n_bootstrap")
-    check_walk_budget(dim, chains, n_bootstrap, payload_words=4, dim_name="state_depth",
-                      dim_value=options["state_depth"])
+    _check_memory(dim, chains, n_bootstrap, options["state_depth"])
 
 
 register(Method("pssmlt", "chain", run_batch,

@@ -21,13 +21,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .._validation import as_rng, check_count, check_positive, settings_with
 from ..scene import Scene
 from ..tracer import Tracer
 from .film import BatchJob, BatchResult
-from .photon import _gather, check_photon_budget, check_photon_method_scene, check_photon_scene, trace_photons, visible_points
+from .photon import (_gather, check_photon_budget, check_photon_method_scene, check_photon_scene, pairs_within,
+                     trace_photons, visible_points)
 from .knobs import scaled_knob
 from .registry import Method, register
 from .stream import CAMERA_DIMS, SampleStream
@@ -126,6 +126,15 @@ def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer
     emission, so ``tau`` sums ``i`` independent estimates). Photons of every
     depth are gathered (no separate direct lighting), so a pixel's direct
     light is blurred by its radius like its indirect light.
+
+    Per pass: the camera rays follow mirrors and glass to their visible
+    points (:func:`~mcvar.integrators.photon.visible_points`), the photons
+    are traced :data:`~mcvar.integrators.photon.PHOTONS_PER_BATCH` at a time
+    and stored only at non-delta hits, and each batch's (visible point,
+    photon) pairs within the point's radius come from one k-d tree
+    (:func:`~mcvar.integrators.photon.pairs_within`), in chunks of bounded
+    size. Measured on ``cornell-caustic`` (docs/photon.md): photon tracing
+    is most of a pass; the more photons per pass, the cheaper each one.
     """
     opts = settings_with(SPPMSettings, settings, options, "sppm")
     res, radius, max_depth = opts.res, opts.radius, opts.max_depth
@@ -168,22 +177,16 @@ def sppm(scene: Scene, settings: SPPMSettings | None = None, *, rng=None, tracer
         phi = np.zeros((n_pix, 3))
         m_new = np.zeros(n_pix)
         if rows.size:
-            vp_tree = cKDTree(vp.position[rows])
-            r_rows = big_r[rows]
-            r_max = float(r_rows.max())
+            points, r_rows = vp.position[rows], big_r[rows]
             counter = [0]
             for batch in trace_photons(scene, photons_per_iteration, rng=rng, tracer=tracer,
                                        max_depth=max_depth, ray_counter=counter):
                 peak = max(peak, batch.n)
-                pairs = vp_tree.sparse_distance_matrix(cKDTree(batch.position), r_max, output_type="coo_matrix")
-                if not pairs.nnz:
-                    continue
-                inside = pairs.data < r_rows[pairs.row]
-                vi, pj = pairs.row[inside], pairs.col[inside]
-                c = _gather(scene, rows, vp, batch, rows[vi], pj)
-                m_new[rows] += np.bincount(vi, minlength=rows.size)
-                for ch in range(3):
-                    phi[rows, ch] += np.bincount(vi, c[:, ch], minlength=rows.size)
+                for vi, pj in pairs_within(points, r_rows, batch.position):
+                    c = _gather(scene, rows, vp, batch, rows[vi], pj)
+                    m_new[rows] += np.bincount(vi, minlength=rows.size)
+                    for ch in range(3):
+                        phi[rows, ch] += np.bincount(vi, c[:, ch], minlength=rows.size)
             rays += counter[0]
         got = m_new > 0
         n_next = count + alpha * m_new
