@@ -8,7 +8,7 @@ that one reference serves all. The reference is path tracing (``--ref-method``;
 it agrees with BDPT at this depth: 8 192 spp against BDPT at 1 024, the MSE
 is the two references' noise, excess 5e-9) at ``--ref-spp`` (4 independent chunks; their spread is its own noise, subtracted from every
 MSE), cached in ``.mcvar-cache/`` keyed by the scene, the settings and the
-renderer's source (``mcvar.experiments.compare``'s code key: a change of
+renderer's source (``mcvar.experiments.scene_references``' code key: a change of
 the integrators renders a new one). Each method's spp is calibrated by a
 pilot to take ``--seconds``; chain methods run one batch (``batch_spp =
 spp``: one bootstrap, the longest chains). Seeds are interleaved across
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mcvar.experiments.compare import _code_key
+from mcvar.experiments.scene_references import _code_key
 from mcvar.integrators import mmlt, render
 from mcvar.scene import load_scene
 
