@@ -10,8 +10,8 @@ is the two references' noise, excess 5e-9) at ``--ref-spp`` (4 independent chunk
 MSE), cached in ``.mcvar-cache/`` keyed by the scene, the settings and the
 renderer's source (``mcvar.experiments.scene_references``' code key: a change of
 the integrators renders a new one). Each method's spp is calibrated by a
-pilot to take ``--seconds``; chain methods run one batch (``batch_spp =
-spp``: one bootstrap, the longest chains). Seeds are interleaved across
+pilot to take ``--seconds``; chain methods run one batch (one bootstrap,
+the longest chains) of up to ``CHAIN_BATCH`` mutations. Seeds are interleaved across
 methods; medians over seeds of time and MSE; efficiency = 1 / (MSE x time).
 Timings are wall clock on a shared machine: the load is printed.
 """
@@ -32,6 +32,8 @@ from mcvar.scene import load_scene
 
 CACHE = Path(__file__).resolve().parents[1] / ".mcvar-cache"
 LUM = np.array([0.2126, 0.7152, 0.0722])
+#: Mutations per batch of the chain methods (larger renders: independent batches of this size).
+CHAIN_BATCH = 1 << 20
 
 
 def reference(scene, name, res, depth, spp, chunks=4, method="path"):
@@ -55,7 +57,9 @@ def reference(scene, name, res, depth, spp, chunks=4, method="path"):
 
 
 def _render(scene, method, spp, res, depth, seed, options):
-    kw = dict(batch_spp=spp) if method in ("mmlt", "pssmlt") else {}
+    # chain methods: one batch (one bootstrap, the longest chains) up to 2^20 mutations (the
+    # driver's memory guard counts a batch's paths), independent batches of that size beyond
+    kw = dict(batch_spp=min(spp, max(1, CHAIN_BATCH // (res * res)))) if method in ("mmlt", "pssmlt") else {}
     return render(scene, method=method, spp=spp, res=res, rng=seed, max_depth=depth, progress=False, **kw,
                   **options)
 
