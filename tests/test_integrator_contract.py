@@ -22,7 +22,7 @@ import pytest
 from scipy import stats
 
 from mcvar.bsdf import Plastic
-from mcvar.integrators import METHODS, render
+from mcvar.integrators import METHODS, mmlt, render
 from mcvar.optics import fresnel_dielectric
 from mcvar.scene import load_scene
 
@@ -64,9 +64,14 @@ def _mean_and_tol(method, scene, *, spp, res, seed, **kw):
     return means.mean(axis=0), T * means.std(axis=0, ddof=1) / np.sqrt(R)
 
 
+#: Methods that need a finite depth and use their own when max_depth is None (the state of
+#: mmlt's chains has a fixed size).
+DEPTH_WHEN_NONE = {"mmlt": mmlt.DEFAULT_MAX_DEPTH}
+
+
 def _depth(method):
     """The expected-value depth of a method rendered with max_depth=None (None: unbounded)."""
-    return method.fixed_depth
+    return method.fixed_depth if method.fixed_depth is not None else DEPTH_WHEN_NONE.get(method.name)
 
 
 def plastic_quad():

@@ -32,6 +32,7 @@ module             holds
 ``driver``         :func:`render` (every method, every allocation),
                    :class:`WorkerPool`, batches and seeds
 ``pssmlt``         primary-sample-space Metropolis light transport (``chain``)
+``mmlt``           multiplexed Metropolis light transport over BDPT's strategies (``chain``)
 =================  ===========================================================
 
 A new method is one module that builds a :class:`Method` and calls
@@ -55,6 +56,7 @@ from .driver import BYTES_PER_PATH, MAX_RENDER_BYTES, WorkerPool, estimate_rende
 from .stream import WHOLE_SET_FLOATS, whole_pattern as _whole_pattern
 
 from . import pssmlt  # noqa: F401  (registers 'pssmlt')
+from . import mmlt  # noqa: F401  (registers 'mmlt', issue 22)
 
 #: Method names accepted by :func:`render` when the package was imported
 #: (:data:`METHODS` is the live registry).

@@ -64,7 +64,7 @@ from .film import BatchJob, BatchResult, splat
 from .registry import Method, register
 from .state import RR_START_DEPTH, _flips as _material_flips
 
-__all__ = ["Subpath", "camera_subpath", "light_subpath", "light_tracing_splats", "check_scene",
+__all__ = ["Subpath", "PathNumbers", "camera_subpath", "light_subpath", "light_tracing_splats", "check_scene",
            "run_light_batch"]
 
 #: Safety cap on subpath vertices under Russian roulette (survival <= 0.95 per step).
@@ -232,6 +232,38 @@ def _bsdf_eval(scene, flips, mat, ng, wo, wi, need_pdf=True):
     return f, pf, pr
 
 
+class PathNumbers:
+    """Given random numbers for a wavefront of subpaths, in place of a generator.
+
+    Metropolis light transport (:mod:`mcvar.integrators.mmlt`) makes a subpath
+    a pure function of its chain's state: :func:`camera_subpath` and
+    :func:`light_subpath` take a ``PathNumbers`` as their ``rng`` (without
+    Russian roulette, the only other use of the generator).
+
+    Parameters
+    ----------
+    origin : ndarray, shape (n, 4), or None
+        What :func:`light_subpath` draws for its origins (``random((n, 4))``).
+    vertices : ndarray, shape (n, 2 k)
+        Columns ``2 (i - 1), 2 (i - 1) + 1``: the BSDF sample of vertex ``i``
+        (``i = 1 .. k``) of path ``j`` in row ``j``.
+    """
+
+    def __init__(self, origin, vertices):
+        self.origin = origin
+        self.vertices = vertices
+
+    def random(self, shape):
+        if self.origin is None or tuple(shape) != self.origin.shape:
+            raise ValueError(f"PathNumbers holds origins of shape "
+                             f"{None if self.origin is None else self.origin.shape}; asked for {shape}")
+        return self.origin
+
+    def vertex(self, idx, i):
+        """The BSDF numbers (m, 2) of vertex ``i`` of the paths ``idx``."""
+        return self.vertices[idx, 2 * (i - 1):2 * i]
+
+
 @dataclass(frozen=True)
 class _Walk:
     """What a random walk needs besides its rays: the scene, its tracer, the
@@ -309,7 +341,7 @@ def _walk(ws: _Walk, lev, first, o, d, beta, pdf_dir, rng):
         fr = Frame(_shading_normals(flips, mat, ng, wo))
         wo_l = np.stack([_dot(wo, fr.s), _dot(wo, fr.n), _dot(wo, fr.t)], axis=-1)
         m = idx.size
-        u = rng.random((m, 2))
+        u = rng.vertex(idx, i) if isinstance(rng, PathNumbers) else rng.random((m, 2))
         wi_l = np.zeros((m, 3))
         weight = np.zeros((m, 3))
         pdf = np.zeros(m)

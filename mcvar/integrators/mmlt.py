@@ -1,0 +1,600 @@
+"""Multiplexed Metropolis light transport: the ``mmlt`` method (kind ``chain``).
+
+Hachisuka, Kaplanyan and Dachsbacher [1]_, in the structure of pbrt-v4's
+``MLTIntegrator`` [2]_: a Markov chain on the random numbers of
+*bidirectional* path tracing (:mod:`mcvar.integrators.bdpt`). A chain's
+state holds three streams, as pbrt's:
+
+* the **camera** stream: the film position over the whole image (2 numbers)
+  and two numbers per scattering camera vertex;
+* the **light** stream: the origin on the light (4 numbers) and two per
+  scattering light vertex;
+* the **connection** stream: one number that picks the strategy.
+
+Each chain has a fixed depth ``d`` (segments, mcvar's convention: ``d =
+s + t - 1``; pbrt's depth is ``d - 1``). The strategy ``(s, t)`` with ``s + t
+= d + 1`` is picked uniformly from the ``d + 1`` there are, the subpaths of
+``t`` camera and ``s`` light vertices are traced from the streams (no
+Russian roulette: the state has a fixed size, so ``max_depth`` is finite),
+and the target is that one strategy's MIS-weighted contribution times the
+number of strategies, ``f_d(u) = (d + 1) Y(w_{s,t} C_{s,t}(u))``, whose
+integral ``b_d`` is the mean luminance of the image's depth-``d`` part. The
+multiplexing: a small step of the connection number changes the strategy,
+and the chain spends its time on the strategies whose MIS-weighted
+contribution is large, the ones that sample the path well.
+
+Chains run **in lockstep**: every chain proposes, every proposal is traced in
+one wavefront (a bounce iteration serves every chain whose path has that
+vertex), every chain accepts or rejects at once; chains are processed
+:data:`CHAIN_CHUNK` at a time to bound memory. One shared **bootstrap** per
+depth (``n_bootstrap`` stratified uniform states each,
+:func:`stratified_states`) estimates ``b_d`` with its standard error;
+chains are given depths in proportion to ``b_d`` (largest remainders, at
+least one chain per lit depth) and start at bootstrap states of their depth
+drawn ``∝ f_d`` (sampling-importance resampling: no start-up bias to burn
+off). The chains' large steps are uniform samples of ``f_d`` too and join
+the bootstrap's in the final ``b_d``.
+
+References
+----------
+.. [1] T. Hachisuka, A. S. Kaplanyan, C. Dachsbacher, "Multiplexed
+   Metropolis Light Transport", ACM Transactions on Graphics 33(4)
+   (SIGGRAPH 2014).
+.. [2] M. Pharr, W. Jakob, G. Humphreys, "Physically Based Rendering", 4th
+   ed., MIT Press 2023, section 13.4 (``MLTIntegrator``, ``MLTSampler``).
+.. [3] C. Kelemen, L. Szirmay-Kalos, G. Antal, F. Csonka, "A Simple and
+   Robust Mutation Strategy for the Metropolis Light Transport Algorithm",
+   Computer Graphics Forum 21(3), 2002.
+.. [4] E. Veach, "Robust Monte Carlo Methods for Light Transport
+   Simulation", PhD thesis, Stanford 1997, chapter 11.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import as_rng, check_bool, check_count, check_positive, check_probability, settings_with
+from ..envmap import LUMINANCE_WEIGHTS
+from ..mcmc import check_walk_budget, integrated_time
+from ..scene import Scene
+from ..tracer import Tracer
+from .bdpt import _connect_emitter, _connect_inner, _mis_weight
+from .emitters import LightOrigins
+from .film import BatchJob, BatchResult
+from .light import CHUNK_PATHS, PathNumbers, _connect_camera, _Context, camera_subpath, check_scene, light_subpath
+from .registry import Method, register
+
+__all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "MIN_TAU_STEPS", "MmltSettings", "MmltFilm", "StateLayout",
+           "mmlt_film", "stratified_states", "evaluate_states", "kelemen_mutate", "lockstep",
+           "run_batch"]
+
+#: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
+#: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
+#: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`)
+#: and whether the chains start from the bootstrap (False: start-up bias).
+OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True}
+
+#: The depth (segments) a render with ``max_depth=None`` uses: the state has a
+#: fixed size, so MMLT needs a finite depth (pbrt-v4's ``maxdepth`` 5 bounces
+#: is 6 segments; 5 segments carry the cornell-door's light through the slit
+#: and two bounces in the room).
+DEFAULT_MAX_DEPTH = 5
+
+#: Fewest bootstrap states per depth by default (a small render still finds lit paths).
+MIN_BOOTSTRAP = 1024
+
+#: Steps per chain below which no autocorrelation time is reported (NaN):
+#: Sokal's window needs chains longer than a few ``tau``.
+MIN_TAU_STEPS = 16
+
+#: Chains stepped at once (one wavefront); more are run chunk after chunk.
+CHAIN_CHUNK = CHUNK_PATHS
+
+_LUM = np.asarray(LUMINANCE_WEIGHTS)
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where the three streams lie in a state of ``max_depth`` segments.
+
+    ``camera``: columns 0, 1 the film position over the whole image (x =
+    column, y = row), then two per scattering camera vertex (``max_depth -
+    1`` of them); ``light``: four for the origin, two per scattering light
+    vertex (``max_depth - 2``); ``strategy``: the last column.
+    """
+
+    max_depth: int
+
+    @property
+    def camera_vertices(self) -> slice:
+        return slice(2, 2 + 2 * max(self.max_depth - 1, 0))
+
+    @property
+    def light_origin(self) -> slice:
+        a = self.camera_vertices.stop
+        return slice(a, a + 4)
+
+    @property
+    def light_vertices(self) -> slice:
+        a = self.light_origin.stop
+        return slice(a, a + 2 * max(self.max_depth - 2, 0))
+
+    @property
+    def strategy(self) -> int:
+        return self.light_vertices.stop
+
+    @property
+    def dim(self) -> int:
+        return self.strategy + 1
+
+
+class _Rows:
+    """A subpath's ``(depth, n)`` field seen through a map of rows (``a[i, idx] = base[i, rows[idx]]``)."""
+
+    __slots__ = ("base", "rows")
+
+    def __init__(self, base, rows):
+        self.base, self.rows = base, rows
+
+    def __getitem__(self, key):
+        i, idx = key
+        return self.base[i, self.rows[idx]]
+
+
+class _Subset:
+    """The paths ``rows`` of a :class:`~mcvar.integrators.light.Subpath`, renumbered ``0 .. len(rows) - 1``
+    (the chains of one strategy among those traced with the same number of vertices)."""
+
+    def __init__(self, sub, rows):
+        self._sub, self._rows = sub, rows
+        self.length = sub.length[rows]
+        self.point = sub.point[rows]
+        self.pixel = sub.pixel[rows]
+
+    def __getattr__(self, name):
+        return _Rows(getattr(self._sub, name), self._rows)
+
+
+def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
+    """The target and the splat of each state: ``(f (m,), pixel (m,), rgb (m, 3), rays)``.
+
+    State ``x[j]`` at depth ``depth[j]`` picks strategy ``s = floor(u (d + 1))``
+    (``u`` its connection number), ``t = d + 1 - s``; the camera subpath of
+    ``t`` vertices and the light subpath of ``s`` vertices are traced from its
+    streams (:class:`~mcvar.integrators.light.PathNumbers`), all states with
+    the same ``t`` (``s``) in one wavefront, and joined by BDPT's connection
+    of that strategy, weighted by BDPT's MIS weight (:func:`~mcvar.integrators.bdpt._mis_weight`).
+    ``rgb = (d + 1) w_{s,t} C_{s,t}`` (0 for paths that carry no light, with
+    ``pixel = -1``), ``f = Y(rgb)``. ``E f = b_d`` for uniform states.
+    """
+    scene, tracer, res = ctx.scene, ctx.tracer, ctx.res
+    width, height = res
+    m = x.shape[0]
+    n_strat = depth + 1
+    s = np.minimum((x[:, layout.strategy] * n_strat).astype(np.intp), depth)
+    t = n_strat - s
+    rgb = np.zeros((m, 3))
+    pixel = np.full(m, -1, dtype=np.intp)
+    rays = 0
+    cams, lights = {}, {}
+    for tv in np.unique(t[t >= 2]):
+        rows = np.flatnonzero(t == tv)
+        u = x[rows]
+        col = np.minimum((u[:, 0] * width).astype(np.intp), width - 1)
+        row = np.minimum((u[:, 1] * height).astype(np.intp), height - 1)
+        offsets = np.stack([u[:, 0] * width - col, u[:, 1] * height - row], axis=1)
+        numbers = PathNumbers(None, u[:, layout.camera_vertices])
+        C = camera_subpath(scene, tracer, res, row * width + col, offsets, int(tv), numbers, roulette=False)
+        rays += C.rays
+        cams[int(tv)] = (rows, C)
+    for sv in np.unique(s[s >= 1]):
+        rows = np.flatnonzero(s == sv)
+        u = x[rows]
+        numbers = PathNumbers(np.ascontiguousarray(u[:, layout.light_origin]), u[:, layout.light_vertices])
+        L = light_subpath(scene, tracer, ctx.em, rows.size, int(sv), numbers, roulette=False)
+        rays += L.rays
+        lights[int(sv)] = (rows, L)
+    for sv, tv in sorted(set(zip(s.tolist(), t.tolist()))):
+        grp = np.flatnonzero((s == sv) & (t == tv))
+        Lg = Cg = None
+        if sv >= 1:
+            rows, L = lights[sv]
+            Lg = _Subset(L, np.searchsorted(rows, grp))
+        if tv >= 2:
+            rows, C = cams[tv]
+            Cg = _Subset(C, np.searchsorted(rows, grp))
+        if (Lg is not None and not np.any(Lg.length >= sv)) or (Cg is not None and not np.any(Cg.length >= tv)):
+            continue                                  # no path of the group has the vertices
+        if tv == 1:
+            k, pix, value, weight = _connect_camera(ctx, Lg, sv, _mis_weight)
+            rays += k.size
+        elif sv == 0:
+            k, value, weight = _connect_emitter(ctx, Cg, tv)
+            pix = Cg.pixel[k]
+        else:
+            k, value, weight = _connect_inner(ctx, Lg, Cg, sv, tv)
+            rays += k.size
+            pix = Cg.pixel[k]
+        rgb[grp[k]] = value * (weight * n_strat[grp[k]])[:, None]
+        pixel[grp[k]] = pix
+    f = rgb @ _LUM
+    pixel[f <= 0.0] = -1
+    return f, pixel, rgb, rays
+
+
+def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
+    """Kelemen's mutation of every chain: ``(y, large)``.
+
+    A small step ``y = x + N(0, sigma^2 I)`` wrapped on the torus ``[0, 1)^dim``,
+    or, for the chains of ``large`` (each with probability ``p_large``), a
+    uniform state. Both are symmetric (``T(x -> y) = T(y -> x)``), so is the
+    mixture. A large step's value ``f(y)`` is an iid sample of ``f`` under
+    the uniform density: MMLT adds it to the bootstrap's estimate of ``b``
+    (Kelemen et al. 2002, section 4).
+    """
+    y = x + rng.normal(0.0, sigma, size=x.shape)
+    y -= np.floor(y)
+    large = rng.random(x.shape[0]) < p_large if p_large > 0.0 else np.zeros(x.shape[0], dtype=bool)
+    k = int(large.sum())
+    if k:
+        y[large] = rng.random((k, x.shape[1]))
+    np.minimum(y, np.nextafter(1.0, 0.0), out=y)   # floor(y) may round 1 - 1e-17 up to 1
+    return y, large
+
+
+def lockstep(evaluate, start, n_steps: int, mutation, rng, visit=None):
+    """Metropolis-Hastings for all chains at once: ``n_steps`` steps of Kelemen's mutation.
+
+    Every chain proposes (:func:`kelemen_mutate`: a Gaussian step of size
+    ``sigma`` wrapped on the torus, or with probability ``p_large`` a uniform
+    state), ``evaluate(y) -> (f, payload)`` traces all proposals together,
+    and every chain accepts with ``a = min(1, f(y) / f(x))`` at once (the
+    proposal is symmetric, so ``f`` is invariant: detailed balance).
+    ``start = (x, fx, payload)``: the chains' states, their values and a
+    tuple of per-chain payload arrays; ``mutation = (sigma, p_large)``.
+    ``visit(px, py, a, fy, large)`` sees each step's current and proposed
+    payloads, the acceptance probabilities (for expected-value splatting),
+    the proposals' values and which were large steps. Returns the
+    final states, their values, the values after every step ``(n_steps,
+    chains)`` (for the autocorrelation time) and each chain's number of accepted moves.
+    """
+    x, fx, payload = start
+    sigma, p_large = mutation
+    chains = x.shape[0]
+    values = np.empty((n_steps, chains))
+    n_acc = np.zeros(chains, dtype=np.int64)
+    for step in range(n_steps):
+        y, large = kelemen_mutate(x, sigma, p_large, rng)
+        fy, py = evaluate(y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = np.where(fx > 0.0, np.minimum(1.0, fy / fx), 1.0)
+        acc = rng.random(chains) < a
+        if visit is not None:
+            visit(payload, py, a, fy, large)
+        x = np.where(acc[:, None], y, x)
+        fx = np.where(acc, fy, fx)
+        payload = tuple(np.where(acc.reshape((-1,) + (1,) * (p.ndim - 1)), q, p) for p, q in zip(payload, py))
+        values[step] = fx
+        n_acc += acc
+    return x, fx, values, n_acc
+
+
+@dataclass(frozen=True)
+class MmltSettings:
+    """The settings of one MMLT run (:func:`mmlt_film`'s keywords; defaults :data:`OPTIONS`)."""
+
+    max_depth: int = DEFAULT_MAX_DEPTH
+    heuristic: str = "power"
+    chains: int = OPTIONS["chains"]
+    sigma: float = OPTIONS["sigma"]
+    p_large: float = OPTIONS["p_large"]
+    n_bootstrap: int | None = OPTIONS["n_bootstrap"]
+    bootstrap: bool = OPTIONS["bootstrap"]
+
+
+@dataclass(frozen=True)
+class MmltFilm:
+    """One MMLT run: ``image = sum / spp`` (the :class:`BatchResult` convention), and its diagnostics.
+
+    Attributes
+    ----------
+    sum : ndarray, shape (n_pix, 3)
+    spp : float
+        Mutations per pixel done (``chains * n_steps / n_pix``).
+    rays : int
+        Rays traced, bootstrap included.
+    b, b_stderr : ndarray, shape (max_depth,)
+        Per depth ``d = 1 .. max_depth``: the bootstrap's ``b_d`` (mean
+        luminance of the depth-``d`` image) and its standard error.
+    chains : ndarray of int, shape (max_depth,)
+        Chains per depth.
+    acceptance_rate : float
+        Over all chains and steps.
+    acceptance : ndarray, shape (max_depth,)
+        Per depth (NaN where no chain runs).
+    tau, ess : ndarray, shape (max_depth,)
+        Integrated autocorrelation time (steps) of ``f`` along the chains of
+        each depth (:func:`mcvar.mcmc.integrated_time`, Sokal's window;
+        window-limited, a lower bound, when chains are shorter than ~5 tau)
+        and the effective sample size ``chains_d n_steps / tau_d``.
+    n_steps : int
+        Steps per chain.
+    """
+
+    sum: np.ndarray
+    spp: float
+    rays: int
+    b: np.ndarray
+    b_stderr: np.ndarray
+    chains: np.ndarray
+    acceptance_rate: float
+    acceptance: np.ndarray
+    tau: np.ndarray
+    ess: np.ndarray
+    n_steps: int
+
+
+def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
+    """``n`` bootstrap states, each uniform on ``[0, 1)^dim``, stratified.
+
+    The film position (columns 0, 1) is jittered per pixel (state ``i`` in
+    pixel ``perm(i mod n_pix)``), every other column is a Latin hypercube
+    column (``(perm + U) / n``) but the last (MMLT's strategy number), which
+    is stratified inside each pixel (a pixel's ``k`` states spread over
+    ``k`` strata in random order: its strategies evenly). Each state is marginally uniform, so
+    ``mean f`` stays an unbiased estimate of ``b`` and resampling ``∝ f``
+    still starts the chains near ``f / b``; the variance of ``b`` from
+    *which pixel* a state lands in is gone (on the door scene the slit's
+    pixels are 1 % of the image and hold half its light: with iid states,
+    ``b_2`` had a 15 % standard error from 16 384 states).
+    """
+    width, height = res
+    n_pix = width * height
+    x = np.empty((n, dim))
+    i = np.arange(n)
+    pix = rng.permutation(n_pix)[i % n_pix]
+    x[:, 0] = (pix % width + rng.random(n)) / width
+    x[:, 1] = (pix // width + rng.random(n)) / height
+    for c in range(2, dim - 1):
+        x[:, c] = (rng.permutation(n) + rng.random(n)) / n
+    rounds = -(-n // n_pix)                       # the last column: stratified inside each pixel
+    perm = np.argsort(rng.random((n_pix, rounds)), axis=1)
+    x[:, dim - 1] = (perm[i % n_pix, i // n_pix] + rng.random(n)) / rounds
+    np.minimum(x, np.nextafter(1.0, 0.0), out=x)
+    return x
+
+
+def _starts(fd, per_depth, bootstrap: bool, rng) -> np.ndarray:
+    """Rows of the bootstrap (``fd``: values, shape (depths, n)) the chains of each depth start at:
+    drawn ``∝ f`` (bootstrap), or uniformly among the lit ones (start-up bias)."""
+    depths, n = fd.shape
+    pick = np.empty(int(per_depth.sum()), dtype=np.intp)
+    at = 0
+    for d in range(depths):
+        c = int(per_depth[d])
+        if c == 0:
+            continue
+        w = fd[d]
+        if bootstrap:
+            pick[at:at + c] = d * n + rng.choice(n, size=c, p=w / w.sum())
+        else:
+            lit = np.flatnonzero(w > 0)
+            pick[at:at + c] = d * n + lit[rng.integers(0, lit.size, size=c)]
+        at += c
+    return pick
+
+
+def _allocate(b, chains):
+    """Chains per depth ``∝ b`` (largest remainders), at least one per depth with ``b > 0``."""
+    lit = b > 0.0
+    n_lit = int(lit.sum())
+    if chains < n_lit:
+        raise ValueError(f"chains must be >= the number of depths that carry light ({n_lit}); got {chains}")
+    share = np.where(lit, b / b.sum() * (chains - n_lit), 0.0)
+    c = np.floor(share).astype(np.int64)
+    rest = chains - n_lit - int(c.sum())
+    c[np.argsort(-(share - c), kind="stable")[:rest]] += 1
+    return c + lit
+
+
+def _check(opts: MmltSettings):
+    """Every setting's type and value (a ValueError or TypeError naming it)."""
+    depth = check_count(opts.max_depth, "max_depth")
+    chains = check_count(opts.chains, "chains")
+    sigma = check_positive(opts.sigma, "sigma")
+    if not sigma <= 1.0:
+        raise ValueError(f"sigma must be in (0, 1] (a step on the unit torus); got {sigma}")
+    p_large = check_probability(opts.p_large, "p_large")
+    n_boot = None if opts.n_bootstrap is None else check_count(opts.n_bootstrap, "n_bootstrap")
+    check_bool(opts.bootstrap, "bootstrap")
+    if opts.heuristic not in ("balance", "power"):
+        raise ValueError(f"heuristic must be 'balance' or 'power'; got {opts.heuristic!r}")
+    layout = StateLayout(depth)
+    check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), None if n_boot is None else n_boot * depth,
+                      payload_words=4, dim_name="max_depth", dim_value=depth)
+    return depth, chains, sigma, p_large, n_boot, layout
+
+
+def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings: MmltSettings | None = None,
+              **options) -> MmltFilm:
+    """Run MMLT for ``spp`` mutations per pixel on average.
+
+    Parameters
+    ----------
+    scene : Scene
+    res : (int, int)
+        ``(W, H)``.
+    spp : float
+        Mutations per pixel: ``n_steps = ceil(spp W H / chains)`` per chain.
+    settings : MmltSettings, optional
+        The settings below as one record; keywords replace its fields.
+
+    Other Parameters
+    ----------------
+    rng : None, int, SeedSequence or Generator
+    tracer : Tracer, optional
+    max_depth : int
+        Segments of the longest path (finite: the state has ``StateLayout(max_depth).dim`` numbers).
+    heuristic : {'power', 'balance'}
+        BDPT's MIS weights.
+    chains : int
+        Chains run in lockstep (capped at the number of mutations).
+    sigma : float
+        Kelemen's small-step size on the unit torus, in (0, 1].
+    p_large : float
+        Probability of a large step (a fresh uniform state), in [0, 1].
+    n_bootstrap : int or None
+        Bootstrap states *per depth*; None: ``max(chains, N / 2, 1024)`` for ``N`` mutations. The
+        bootstrap's error in ``b_d``, a scale on the whole depth-``d`` image, dominated the MSE on
+        cornell-door: of ``N / 20``, ``N / 5``, ``N / 2`` and ``N`` per depth, ``N / 2`` was the
+        most efficient at 128-512 mutations per pixel (docs/mcmc.md, 'MMLT').
+    bootstrap : bool
+        True: start the chains at bootstrap states resampled ``∝ f_d``;
+        False: at uniformly drawn lit bootstrap states of their depth
+        (start-up bias, for the measurement).
+
+    Notes
+    -----
+    **Estimator** (Veach 1997 eq. 11.7; Hachisuka et al. 2014 eq. 4): with
+    ``N_d`` mutations at depth ``d`` (``chains_d n_steps``), pixel ``j`` is
+
+        I_j = sum_d b_d / N_d * sum_k n_pix [(1 - a_k) 1_j(x_k) c(x_k) / f(x_k) + a_k 1_j(y_k) c(y_k) / f(y_k)]
+
+    (expected-value splatting of the current state ``x_k`` and the proposal
+    ``y_k``; ``c = rgb``, ``f = Y(c)``), so the image's mean luminance is
+    ``sum_d b_d`` exactly. ``b_d`` comes from the bootstrap (an unbiased
+    estimate, a global scale per depth).
+    """
+    opts = settings_with(MmltSettings, settings, options, "mmlt_film")
+    depth_max, chains, sigma, p_large, n_boot, layout = _check(opts)
+    rng = as_rng(rng)
+    width, height = res
+    n_pix = width * height
+    if not (np.isfinite(spp) and spp > 0):
+        raise ValueError(f"spp must be finite and > 0; got {spp}")
+    n_mut = max(1, int(round(spp * n_pix)))
+    chains = min(chains, n_mut)
+    n_steps = -(-n_mut // chains)
+    if n_boot is None:
+        n_boot = max(chains, n_mut // 2, MIN_BOOTSTRAP)
+        check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot * depth_max, payload_words=4,
+                          dim_name="max_depth", dim_value=depth_max)
+    tracer = tracer if tracer is not None else Tracer(scene)
+    ctx = _Context(scene, tracer, LightOrigins(scene), res, opts.heuristic, True)
+    rays = [0]
+
+    def evaluate(x, depth):
+        f = np.empty(x.shape[0])
+        pix = np.empty(x.shape[0], dtype=np.intp)
+        rgb = np.empty((x.shape[0], 3))
+        for a in range(0, x.shape[0], CHAIN_CHUNK):
+            sl = slice(a, a + CHAIN_CHUNK)
+            f[sl], pix[sl], rgb[sl], r = evaluate_states(ctx, layout, x[sl], depth[sl])
+            rays[0] += r
+        return f, (pix, rgb)
+
+    # the bootstrap: n_boot uniform states per depth
+    boot_depth = np.repeat(np.arange(1, depth_max + 1), n_boot)
+    cand = np.concatenate([stratified_states(n_boot, layout.dim, res, rng) for _ in range(depth_max)])
+    fc, (pc, rc) = evaluate(cand, boot_depth)
+    fd = fc.reshape(depth_max, n_boot)
+    b = fd.mean(axis=1)
+    b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
+    if not b.sum() > 0.0:
+        raise ValueError(f"none of the {boot_depth.size} bootstrap paths carries light: cannot start the "
+                         "chains (raise n_bootstrap)")
+    per_depth = _allocate(b, chains)
+    dep = np.repeat(np.arange(1, depth_max + 1), per_depth)
+    pick = _starts(fd, per_depth, opts.bootstrap, rng)
+    # per depth: the splats' sum / N_d (times b_d at the end), and the large steps' values
+    inv_n = np.zeros(depth_max + 1)
+    inv_n[1:] = np.divide(1.0, per_depth * n_steps, out=np.zeros(depth_max), where=per_depth > 0)
+    films = np.zeros(((depth_max + 1) * n_pix, 3))
+    large_n, large_s1, large_s2 = np.zeros(depth_max + 1), np.zeros(depth_max + 1), np.zeros(depth_max + 1)
+
+    def splat(payload, weight, dd):
+        pix, rgb = payload
+        lum = rgb @ _LUM
+        ok = (pix >= 0) & (weight > 0.0)
+        w = weight[ok] * inv_n[dd[ok]] / lum[ok]
+        at = dd[ok] * n_pix + pix[ok]
+        for c in range(3):
+            films[:, c] += np.bincount(at, weights=w * rgb[ok, c], minlength=films.shape[0])
+
+    n_acc = 0
+    acc_d = np.zeros(depth_max)
+    tau = np.full(depth_max, np.nan)
+    values_d = [[] for _ in range(depth_max)]
+    for a in range(0, chains, CHAIN_CHUNK):
+        sel = pick[a:a + CHAIN_CHUNK]
+        dd = dep[a:a + CHAIN_CHUNK]
+
+        def visit(px, py, acc_prob, fy, large, dd=dd):
+            splat(px, 1.0 - acc_prob, dd)
+            splat(py, acc_prob, dd)
+            large_n[:] += np.bincount(dd[large], minlength=depth_max + 1)
+            large_s1[:] += np.bincount(dd[large], weights=fy[large], minlength=depth_max + 1)
+            large_s2[:] += np.bincount(dd[large], weights=fy[large] ** 2, minlength=depth_max + 1)
+
+        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (cand[sel], fc[sel], (pc[sel], rc[sel])),
+                                    n_steps, (sigma, p_large), rng, visit=visit)
+        n_acc += int(n.sum())
+        for d in range(depth_max):
+            cols = np.flatnonzero(dd == d + 1)
+            if cols.size:
+                values_d[d].append(values[:, cols])
+                acc_d[d] += n[cols].sum()
+    del cand
+    acceptance = np.full(depth_max, np.nan)
+    for d in range(depth_max):
+        if values_d[d]:
+            v = np.concatenate(values_d[d], axis=1)
+            if n_steps >= MIN_TAU_STEPS:
+                tau[d] = max(integrated_time(v)[0], 1.0)
+            acceptance[d] = acc_d[d] / v.size
+    # b_d from the bootstrap and the large steps together (both iid uniform samples of f_d)
+    n_b = n_boot + large_n[1:]
+    b = (fd.sum(axis=1) + large_s1[1:]) / n_b
+    var = np.maximum(((fd ** 2).sum(axis=1) + large_s2[1:]) / n_b - b * b, 0.0) * n_b / np.maximum(n_b - 1, 1)
+    b_se = np.sqrt(var / n_b)
+    image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
+    done = chains * n_steps
+    ess = per_depth * n_steps / tau
+    return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
+                    chains=per_depth, acceptance_rate=n_acc / done, acceptance=acceptance, tau=tau, ess=ess,
+                    n_steps=n_steps)
+
+
+def run_batch(job: BatchJob) -> BatchResult:
+    """One independent MMLT run of ``job.spp`` mutations per pixel (the registry's ``run_batch``).
+
+    ``job.u`` is not used (the chains' states are their own random numbers);
+    ``max_depth=None`` is :data:`DEFAULT_MAX_DEPTH`. ``extra`` holds the
+    diagnostics (spp-weighted over batches): ``b`` (total), ``b_depth``,
+    ``b_stderr_depth``, ``chains_depth``, ``acceptance_rate``, ``tau_depth``, ``ess_depth``.
+    """
+    depth = DEFAULT_MAX_DEPTH if job.max_depth is None else job.max_depth
+    run = mmlt_film(job.scene, job.res, job.spp, rng=job.rng, tracer=job.tracer, max_depth=depth,
+                    heuristic=job.heuristic, **job.options)
+    if not np.all(np.isfinite(run.sum)):
+        raise FloatingPointError("mmlt produced non-finite radiance (a bug, please report)")
+    w = job.spp
+    extra = {"b": np.array([run.b.sum() * w]), "b_depth": run.b * w, "b_stderr_depth": run.b_stderr * w,
+             "chains_depth": run.chains * w, "acceptance_rate": np.array([run.acceptance_rate * w]),
+             "tau_depth": np.nan_to_num(run.tau) * w, "ess_depth": np.nan_to_num(run.ess) * w}
+    return BatchResult(sum=run.sum * (job.spp / run.spp), sum_sq=None, rays=run.rays, extra=extra)
+
+
+def _check_options(scene, options) -> None:
+    """``check_scene`` of ``mmlt``: a light to start light subpaths from, and every option's type and value."""
+    check_scene(scene, options, "mmlt")
+    _check(MmltSettings(chains=options["chains"], sigma=options["sigma"], p_large=options["p_large"],
+                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"]))
+
+
+register(Method("mmlt", "chain", run_batch,
+                "multiplexed Metropolis light transport (Hachisuka 2014): lockstep chains on BDPT's camera, "
+                "light and strategy numbers, one MIS-weighted strategy per state, bootstrap per depth "
+                f"(max_depth=None: {DEFAULT_MAX_DEPTH})",
+                options=OPTIONS, check_scene=_check_options, stream_dims=0))

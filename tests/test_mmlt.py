@@ -1,0 +1,199 @@
+"""MMLT (issue 22): unbiased against BDPT, the bootstrap's b, detailed balance, workers, bad input."""
+import numpy as np
+import pytest
+from scipy import stats
+
+from mcvar.integrators import render
+from mcvar.integrators.bdpt import BDPTSettings, bdpt_contributions
+from mcvar.integrators.emitters import LightOrigins
+from mcvar.integrators.mmlt import MmltSettings, StateLayout, lockstep, mmlt_film, stratified_states
+from mcvar.scene import load_scene
+from mcvar.tracer import Tracer
+
+LUM = np.array([0.2126, 0.7152, 0.0722])
+#: 5 standard errors two-sided for the family, Sidak-corrected per check
+FAMILY = 2 * stats.norm.sf(5.0)
+
+
+def _z(k):
+    return stats.norm.isf((1.0 - (1.0 - FAMILY) ** (1.0 / k)) / 2)
+
+
+@pytest.fixture(scope="module")
+def cornell():
+    return load_scene("cornell")
+
+
+def test_state_layout_holds_three_streams():
+    lay = StateLayout(5)
+    # camera: film 2 + 2 per scattering vertex (4); light: origin 4 + 2 per scattering vertex (3); strategy 1
+    assert (lay.camera_vertices, lay.light_origin, lay.light_vertices, lay.strategy, lay.dim) == \
+        (slice(2, 10), slice(10, 14), slice(14, 20), 20, 21)
+
+
+def test_stratified_bootstrap_states_are_uniform_with_two_per_pixel():
+    x = stratified_states(128, 5, (8, 8), np.random.default_rng(1))
+    pix = (x[:, 1] * 8).astype(int) * 8 + (x[:, 0] * 8).astype(int)
+    assert sorted(pix) == sorted(list(range(64)) * 2)                     # every pixel twice
+    for c in range(2, 4):                                                  # Latin hypercube columns
+        assert sorted((x[:, c] * 128).astype(int)) == list(range(128))
+    for p in range(64):                                                    # strategy: both halves per pixel
+        assert sorted((x[pix == p, 4] * 2).astype(int)) == [0, 1]
+
+
+def test_mmlt_is_unbiased_against_bdpt_per_block(cornell):
+    """Block means (4 blocks of 4 x 4 pixels x 3 channels) of R independent MMLT runs against R
+    independent BDPT renders at the same depth: |z| below 5 sigma, Sidak over the 12 checks (the
+    variance of each side from its runs' spread)."""
+    res, depth, R = 8, 3, 12
+    seeds = np.random.SeedSequence(2201).spawn(2 * R)
+
+    def blocks(img):
+        return img.reshape(2, 4, 2, 4, 3).mean(axis=(1, 3)).reshape(4, 3)
+
+    m = np.array([blocks(render(cornell, method="mmlt", spp=64, res=res, rng=s, max_depth=depth, batch_spp=64,
+                                chains=512).image) for s in seeds[:R]])
+    b = np.array([blocks(render(cornell, method="bdpt", spp=32, res=res, rng=s, max_depth=depth).image)
+                  for s in seeds[R:]])
+    se = np.sqrt(m.var(axis=0, ddof=1) / R + b.var(axis=0, ddof=1) / R)
+    z = (m.mean(axis=0) - b.mean(axis=0)) / se
+    assert np.all(np.abs(z) < _z(z.size)), (z, _z(z.size))
+
+
+def test_bootstrap_b_per_depth_is_the_image_integral_of_that_depth(cornell):
+    """b_d (the bootstrap's mean of (d + 1) Y(w C) over uniform states) against the mean luminance of
+    BDPT's depth-d strategy images (sum over s + t - 1 = d): the same integral two ways, within
+    5 sigma Sidak over the depths (BDPT's error from 8 independent runs)."""
+    res, depth = 8, 3
+    run = mmlt_film(cornell, (res, res), 16, rng=7, max_depth=depth, chains=256, n_bootstrap=8192)
+    tr = Tracer(cornell)
+    n_pix = res * res
+    per_depth = []
+    for seed in range(8):
+        pixel = np.repeat(np.arange(n_pix), 64)
+        rng = np.random.default_rng(100 + seed)
+        out = bdpt_contributions(cornell, tr, LightOrigins(cornell), (res, res), pixel, rng.random((pixel.size, 2)),
+                                 rng, BDPTSettings(max_depth=depth, strategies=True))
+        per = out[4]
+        per_depth.append([sum((per[k] / 64) @ LUM for k in per if sum(k) - 1 == d).mean()
+                          for d in range(1, depth + 1)])
+    per_depth = np.array(per_depth)
+    truth, t_se = per_depth.mean(axis=0), per_depth.std(axis=0, ddof=1) / np.sqrt(8)
+    z = (run.b - truth) / np.sqrt(run.b_stderr ** 2 + t_se ** 2)
+    assert np.all(np.abs(z) < _z(depth)), (run.b, truth, z)
+    # and the image's mean luminance is sum_d b_d exactly (a Y(c) / f = 1 identity of the splats)
+    img = run.sum / run.spp
+    assert (img @ LUM).mean() == pytest.approx(run.b.sum(), rel=1e-9)
+
+
+def _target(u):
+    """f(u) = (u0 + 0.1) (1 on u1 < 1/2, 1/4 above), 0 on a band u0 in [0.4, 0.5): a gap the small
+    steps must cross."""
+    f = (u[:, 0] + 0.1) * np.where(u[:, 1] < 0.5, 1.0, 0.25)
+    return np.where((u[:, 0] >= 0.4) & (u[:, 0] < 0.5), 0.0, f)
+
+
+def _bin_probabilities(k):
+    """P(bin) of f / b on a k x k grid, exactly (f is linear in u0 and piecewise constant in u1)."""
+    e = np.linspace(0, 1, k + 1)
+    px = np.array([((b + 0.1) ** 2 - (a + 0.1) ** 2) / 2 for a, b in zip(e[:-1], e[1:])])
+    a0, a1 = e[:-1], e[1:]
+    gap_lo, gap_hi = np.maximum(a0, 0.4), np.minimum(a1, 0.5)
+    gap = np.where(gap_hi > gap_lo, ((gap_hi + 0.1) ** 2 - (gap_lo + 0.1) ** 2) / 2, 0.0)
+    px = px - gap
+    py = np.array([(min(b, 0.5) - min(a, 0.5)) * 1.0 + (max(b, 0.5) - max(a, 0.5)) * 0.25
+                   for a, b in zip(e[:-1], e[1:])])
+    p = np.outer(px, py)
+    return p / p.sum()
+
+
+@pytest.mark.parametrize("sigma,p_large", [(0.05, 0.0), (0.05, 0.3), (0.3, 0.1)])
+def test_lockstep_mutation_keeps_its_target_invariant(sigma, p_large):
+    """Detailed balance, checked as invariance: chains started *exactly* from f / b (rejection
+    sampling) are still distributed as f / b after 8 lockstep steps; their final states are iid
+    across chains, so a chi-square test of their 8 x 8 histogram against the exact bin
+    probabilities is exact (p > 1e-4, three settings)."""
+    rng = np.random.default_rng(int(sigma * 1000) + int(p_large * 10))
+    n, k = 40_000, 8
+    cand = rng.random((4 * n, 2))
+    keep = rng.random(4 * n) * 1.1 < _target(cand)
+    x = cand[keep][:n]
+    assert x.shape[0] == n
+
+    def evaluate(y):
+        return _target(y), (np.zeros(y.shape[0]),)
+
+    x, fx, values, acc = lockstep(evaluate, (x, _target(x), (np.zeros(n),)), 8, (sigma, p_large), rng)
+    assert values.shape == (8, n) and 0 < acc.sum() < 8 * n
+    assert np.all(_target(x) > 0) and np.array_equal(fx, _target(x))
+    hist = np.histogram2d(x[:, 0], x[:, 1], bins=k, range=[[0, 1], [0, 1]])[0]
+    p = _bin_probabilities(k)
+    ok = p.ravel() > 0
+    assert np.all(hist.ravel()[~ok] == 0)                                 # never in the gap
+    chi2 = stats.chisquare(hist.ravel()[ok], n * p.ravel()[ok])
+    assert chi2.pvalue > 1e-4, chi2
+
+
+def test_workers_two_give_the_image_of_one():
+    scene = load_scene("cornell-door")
+    kw = dict(method="mmlt", spp=4, res=8, rng=2205, batch_spp=2, max_depth=4, chains=64, n_bootstrap=4096)
+    a = render(scene, workers=1, **kw)
+    b = render(scene, workers=2, **kw)
+    np.testing.assert_array_equal(a.image, b.image)
+    assert b.spp == 4 and "b_depth" in b.extra and b.extra["b_depth"].shape == (4,)
+
+
+def test_diagnostics_per_depth():
+    scene = load_scene("cornell")
+    run = mmlt_film(scene, (8, 8), 64, rng=3, max_depth=3, chains=128)
+    assert run.n_steps == 32 and run.chains.sum() == 128
+    assert run.b.shape == run.b_stderr.shape == run.tau.shape == run.ess.shape == (3,)
+    assert np.all(run.b_stderr > 0) and 0 < run.acceptance_rate < 1
+    lit = run.chains > 0
+    assert np.all(run.tau[lit] >= 1) and np.allclose(run.ess[lit], run.chains[lit] * 32 / run.tau[lit])
+    # chains per depth follow b_d (largest remainders, one at least per lit depth)
+    share = run.b / run.b.sum() * (128 - lit.sum())
+    assert np.all(np.abs(run.chains - lit - share) < 1)
+
+
+@pytest.mark.parametrize("options,error,match", [
+    ({"sigma": 0.0}, ValueError, "sigma"),
+    ({"sigma": 2.0}, ValueError, "sigma"),
+    ({"sigma": float("nan")}, ValueError, "sigma"),
+    ({"p_large": 1.5}, ValueError, "p_large"),
+    ({"chains": 0}, ValueError, "chains"),
+    ({"n_bootstrap": 0}, ValueError, "n_bootstrap"),
+    ({"bootstrap": "yes"}, TypeError, "bootstrap"),
+    ({"max_depth": 0}, ValueError, "max_depth"),
+    ({"chains": 2.5}, TypeError, "chains"),
+])
+def test_bad_input_names_the_argument(options, error, match):
+    with pytest.raises(error, match=match):
+        render(load_scene("cornell"), method="mmlt", spp=1, res=4, **options)
+
+
+def test_too_many_bootstrap_states_is_a_value_error_before_work():
+    with pytest.raises(ValueError, match="n_bootstrap"):
+        mmlt_film(load_scene("cornell"), (4, 4), 1, settings=MmltSettings(n_bootstrap=2 ** 40))
+
+
+def test_start_up_bias_is_removed_by_the_bootstrap(cornell):
+    """pssmlt's measure (docs/mcmc.md): after one mutation per chain, the share of the image's
+    luminance in the reference's darker half of pixels. Chains resampled from the bootstrap agree
+    with the reference (within 5 sigma over 6 runs); chains started at uniformly drawn lit states
+    over-represent the dark half (measured 0.145 +- 0.004 against 0.099)."""
+    ref = render(cornell, method="path", spp=512, res=16, rng=5, max_depth=5).image.reshape(-1, 3) @ LUM
+    dark = ref < np.median(ref)
+    truth = ref[dark].sum() / ref.sum()
+    share = {}
+    for boot in (True, False):
+        vals = []
+        for seed in range(6):
+            run = mmlt_film(cornell, (16, 16), 4, rng=seed, max_depth=5, chains=1024, bootstrap=boot,
+                            n_bootstrap=4096)
+            assert run.n_steps == 1
+            img = (run.sum / run.spp) @ LUM
+            vals.append(img[dark].sum() / img.sum())
+        share[boot] = (np.mean(vals), np.std(vals, ddof=1) / np.sqrt(6))
+    assert abs(share[True][0] - truth) < 5 * share[True][1], (share, truth)
+    assert share[False][0] - truth > 5 * share[False][1], (share, truth)
