@@ -35,9 +35,10 @@ How it is measured
   sample variance over ``K``, is the **floor**: ``E[mean((x - ref)^2)] =
   MSE(x) + mean(var(ref))`` for an image ``x`` independent of the reference,
   so every MSE is the measured one minus the floor
-  (:func:`mse_minus_floor`). Its default budget is 2^27 paths per case
-  (32,768 spp at 64 x 64, 2,048 at 256 x 256): less than the issue's
-  65,536 spp, and the floor is subtracted instead.
+  (:func:`mse_minus_floor`). Its default budget is 2^25 paths per case
+  (8,192 spp at 64 x 64, 512 at 256 x 256; a larger cached one is used
+  when there is one): less than the issue's 65,536 spp, and the floor is
+  subtracted instead.
 - **Agreement first**: each engine's image mean (per channel, over its
   rounds x seeds images) against the reference's, as a z-score with the
   standard error of both (:func:`mean_z_scores`); a case where an engine
@@ -109,7 +110,7 @@ MITSUBA_SAMPLERS = ("independent", "multijitter", "ldsampler")
 MCVAR = ("mcvar default", "mcvar plain")
 #: Reference: paths per case, the sampler and the largest wavefront of one chunk
 #: (pixels x spp of one ``mi.render`` call: Mitsuba holds the whole wavefront in memory).
-REF_PATHS = 2 ** 27
+REF_PATHS = 2 ** 25
 REF_SAMPLER = "multijitter"
 REF_CHUNK_LANES = 2 ** 22
 #: Subdivision levels of the triangle-count series (32 ... 94,082 triangles) and its image.
@@ -416,13 +417,23 @@ def reference(case: Case, paths: int, libllvm: str | None, mitsuba_ok: bool):
     lanes = min(REF_CHUNK_LANES, paths // 16)
     chunk_spp = max(1, 2 ** int(math.log2(max(1, lanes // (case.res * case.res)))))
     chunks = max(2, paths // (chunk_spp * case.res * case.res))
+    def describe(n_chunks, c_spp):
+        return (f"{'Mitsuba ' + variant if variant != 'mcvar' else 'mcvar path, random sampler'}, "
+                f"{n_chunks} x {c_spp} spp = {n_chunks * c_spp} spp")
+
+    # the largest cached reference of this case with at least the paths asked for
+    cached = []
+    for f in CACHE.glob(f"bench-suite-ref-{case.scene}-{case.res}-*x*-{variant}-v{EXPORTER_VERSION}.npz"):
+        m = re.fullmatch(rf"bench-suite-ref-{re.escape(case.scene)}-{case.res}-(\d+)x(\d+)-.*", f.name)
+        if m and int(m.group(1)) * int(m.group(2)) * case.res ** 2 >= paths:
+            cached.append((int(m.group(1)) * int(m.group(2)), int(m.group(2)), int(m.group(1)), f))
+    if cached:
+        _, n_chunks, c_spp, f = max(cached)
+        with np.load(f) as d:
+            return d["mean"], d["var"], n_chunks - 1, describe(n_chunks, c_spp) + " (cached)"
     path = CACHE / (f"bench-suite-ref-{case.scene}-{case.res}-{chunk_spp}x{chunks}-{variant}"
                     f"-v{EXPORTER_VERSION}.npz")
-    what = f"{'Mitsuba ' + variant if variant != 'mcvar' else 'mcvar path, random sampler'}, " \
-           f"{chunks} x {chunk_spp} spp = {chunks * chunk_spp} spp"
-    if path.is_file():
-        with np.load(path) as d:
-            return d["mean"], d["var"], chunks - 1, what + " (cached)"
+    what = describe(chunks, chunk_spp)
     t0 = time.perf_counter()
     print(f"reference of {case.name}: {what} ...", flush=True)
     got = _subprocess(["reference", case.scene, case.res, chunk_spp, "0", "--chunks", chunks, "--variant", variant],
@@ -627,7 +638,7 @@ def main(argv=None) -> int:
                     help="1 round x 3 seeds, 2^24-path references, the triangle series to 1,922 triangles")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--ref-paths", type=int, default=REF_PATHS, help="paths per reference (default 2^27)")
+    ap.add_argument("--ref-paths", type=int, default=REF_PATHS, help="paths per reference (default 2^25)")
     ap.add_argument("--no-mitsuba", action="store_true", help="mcvar only")
     ap.add_argument("--no-triangles", action="store_true", help="skip the triangle-count series")
     ap.add_argument("--no-suite", action="store_true", help="only the triangle-count series")
