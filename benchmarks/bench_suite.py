@@ -54,7 +54,7 @@ Mitsuba (``multijitter``, its load not timed) at 64 x 64 and 32 spp, relative
 to the box; saved as a log-log plot (``docs/performance-suite-triangles.png``).
 
 Outputs: ``out/bench-suite/suite.csv``, ``suite.md`` (the markdown table),
-``triangles.csv``, and the plot. Mitsuba is optional: without it, or without
+``triangles.csv``, and the plot (``--quick`` puts it in ``out/bench-suite/``). Mitsuba is optional: without it, or without
 a libLLVM >= 16 for its LLVM variant (drjit 1.5 fails with LLVM 14 and 15,
 'Cannot select ... fminimum'; ``--libllvm`` or ``DRJIT_LIBLLVM_PATH``, else
 the newest ``libLLVM*.so*`` of version >= 16 found in the usual folders), its
@@ -468,8 +468,11 @@ def run_suite(args, libllvm, mitsuba_ok) -> list[dict]:
             if (rnd + i) % 2:                              # alternate which engine goes first
                 engines.reverse()
             for engine in engines:
+                t0 = time.perf_counter()
                 got = _subprocess([engine, case.scene, case.res, case.spp, seeds], libllvm,
                                   f"{engine} on {case.name}")
+                print(f"  round {rnd + 1}, {case.name}, {engine}: {time.perf_counter() - t0:.0f} s "
+                      f"(load {os.getloadavg()[0]:.1f})", flush=True)
                 names = MCVAR if engine == "mcvar" else MITSUBA_SAMPLERS
                 for n in names:
                     key = (case, n if engine == "mcvar" else f"Mitsuba {n}")
@@ -645,6 +648,9 @@ def main(argv=None) -> int:
     ap.add_argument("--triangle-rounds", type=int, default=3)
     ap.add_argument("--libllvm", default=None, help="a libLLVM >= 16 for Mitsuba's LLVM variant")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--plot", type=Path, default=None,
+                    help=f"where the triangle-count plot goes (default {PLOT.relative_to(ROOT)}; with --quick, "
+                         "OUT/triangles.png, so that a smoke run does not overwrite the docs' figure)")
     args = ap.parse_args(argv)
     args.triangle_ks, args.triangle_res, args.triangle_spp = TRIANGLE_KS, TRIANGLE_RES, TRIANGLE_SPP
     if args.quick:
@@ -661,6 +667,8 @@ def main(argv=None) -> int:
     mitsuba_ok = why is None
     print(f"Mitsuba 3 LLVM: {'libLLVM ' + libllvm if mitsuba_ok else 'skipped: ' + why}")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.plot is None:
+        args.plot = args.out / "triangles.png" if args.quick else PLOT
     t_start = time.perf_counter()
     ratios = []
     if not args.no_suite:
@@ -675,7 +683,7 @@ def main(argv=None) -> int:
         _write_csv(args.out / "triangles.csv", tri)
         with open(args.out / "suite.md", "a") as f:
             f.write("\n" + ttable + "\n")
-        plot_triangles(tri, PLOT, _load())
+        plot_triangles(tri, args.plot, _load())
         print("\n" + ttable)
         mc = sorted((r for r in tri if r["engine"] == "mcvar default"), key=lambda r: r["triangles"])
         if len(mc) > 1:
@@ -683,7 +691,7 @@ def main(argv=None) -> int:
                                np.log([1 / r["mpaths_per_s"] for r in mc[1:] or mc]), 1)[0]
             print(f"mcvar default: seconds per path grow as triangles^{slope:.3f} from {mc[1]['triangles']} "
                   f"triangles; {mc[-1]['triangles']:,} triangles at {mc[-1]['vs_box']:.2f}x the box's paths/s")
-        print(f"saved {PLOT}")
+        print(f"saved {args.plot}")
     print(f"\nwrote {args.out}/suite.csv, suite.md{', triangles.csv' if not args.no_triangles else ''}; "
           f"{time.perf_counter() - t_start:.0f} s in all; load average now {_load()}")
     if ratios:
