@@ -417,20 +417,23 @@ def reference(case: Case, paths: int, libllvm: str | None, mitsuba_ok: bool):
     lanes = min(REF_CHUNK_LANES, paths // 16)
     chunk_spp = max(1, 2 ** int(math.log2(max(1, lanes // (case.res * case.res)))))
     chunks = max(2, paths // (chunk_spp * case.res * case.res))
-    def describe(n_chunks, c_spp):
-        return (f"{'Mitsuba ' + variant if variant != 'mcvar' else 'mcvar path, random sampler'}, "
+    def describe(n_chunks, c_spp, v=variant):
+        return (f"{'Mitsuba ' + v if v != 'mcvar' else 'mcvar path, random sampler'}, "
                 f"{n_chunks} x {c_spp} spp = {n_chunks * c_spp} spp")
 
-    # the largest cached reference of this case with at least the paths asked for
+    # the cached reference of this case with at least the paths asked for: an
+    # independent renderer's (Mitsuba, either variant) before mcvar's own, then the largest
     cached = []
-    for f in CACHE.glob(f"bench-suite-ref-{case.scene}-{case.res}-*x*-{variant}-v{EXPORTER_VERSION}.npz"):
-        m = re.fullmatch(rf"bench-suite-ref-{re.escape(case.scene)}-{case.res}-(\d+)x(\d+)-.*", f.name)
+    for f in CACHE.glob(f"bench-suite-ref-{case.scene}-{case.res}-*x*-v{EXPORTER_VERSION}.npz"):
+        m = re.fullmatch(rf"bench-suite-ref-{re.escape(case.scene)}-{case.res}-(\d+)x(\d+)-"
+                         rf"(llvm_ad_rgb|scalar_rgb|mcvar)-v{EXPORTER_VERSION}\.npz", f.name)
         if m and int(m.group(1)) * int(m.group(2)) * case.res ** 2 >= paths:
-            cached.append((int(m.group(1)) * int(m.group(2)), int(m.group(2)), int(m.group(1)), f))
+            cached.append((m.group(3) != "mcvar", int(m.group(1)) * int(m.group(2)), int(m.group(2)),
+                           int(m.group(1)), m.group(3), str(f)))
     if cached:
-        _, n_chunks, c_spp, f = max(cached)
+        _, _, n_chunks, c_spp, v, f = max(cached)
         with np.load(f) as d:
-            return d["mean"], d["var"], n_chunks - 1, describe(n_chunks, c_spp) + " (cached)"
+            return d["mean"], d["var"], n_chunks - 1, describe(n_chunks, c_spp, v) + " (cached)"
     path = CACHE / (f"bench-suite-ref-{case.scene}-{case.res}-{chunk_spp}x{chunks}-{variant}"
                     f"-v{EXPORTER_VERSION}.npz")
     what = describe(chunks, chunk_spp)

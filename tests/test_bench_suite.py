@@ -124,3 +124,40 @@ def test_find_libllvm_prefers_what_it_is_given(suite, monkeypatch):
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/x/libLLVM.so.19.1")
     assert suite.find_libllvm("/given/libLLVM-17.so") == "/given/libLLVM-17.so"
     assert suite.find_libllvm(None) == "/x/libLLVM.so.19.1"
+
+
+def test_mitsuba_is_skipped_with_a_reason_when_missing(suite, monkeypatch):
+    import importlib.util as iu
+
+    real = iu.find_spec
+    monkeypatch.setattr(iu, "find_spec", lambda name, *a: None if name == "mitsuba" else real(name, *a))
+    assert "not installed" in suite.mitsuba_status("/x/libLLVM.so.19.1")
+    monkeypatch.setattr(iu, "find_spec", real)
+    if real("mitsuba") is not None:
+        assert "libLLVM >= 16" in suite.mitsuba_status(None)
+
+
+def test_cached_reference_prefers_an_independent_renderer_then_the_most_paths(suite, monkeypatch, tmp_path):
+    """Of the cached references of a case with enough paths, a Mitsuba one (either variant)
+    beats mcvar's own, and among those the largest; too small ones are not used."""
+    from mcvar.interop.mitsuba import EXPORTER_VERSION
+
+    monkeypatch.setattr(suite, "CACHE", tmp_path)
+    case = suite.Case("cornell", 4, 16)
+    shape = (4, 4, 3)
+
+    def put(spp, chunks, variant, value):
+        np.savez(tmp_path / f"bench-suite-ref-cornell-4-{spp}x{chunks}-{variant}-v{EXPORTER_VERSION}.npz",
+                 mean=np.full(shape, value), var=np.full(shape, 1e-6))
+
+    put(1024, 32, "mcvar", 1.0)            # the most paths, but mcvar's own
+    put(64, 32, "scalar_rgb", 2.0)
+    put(256, 16, "llvm_ad_rgb", 3.0)       # 4,096 spp: the largest Mitsuba one
+    put(8, 2, "llvm_ad_rgb", 4.0)          # too few paths for the request below
+    put(4096, 32, "llvm_ad_rgb", 6.0)
+    (tmp_path / "bench-suite-ref-cornell-spheres-4-8192x32-llvm_ad_rgb-v1.npz").write_bytes(b"not this scene")
+    mean, var, dof, what = suite.reference(case, 16 * 2048, None, True)
+    assert mean[0, 0, 0] == 6.0 and dof == 31 and "llvm_ad_rgb, 32 x 4096 spp" in what
+    (tmp_path / f"bench-suite-ref-cornell-4-4096x32-llvm_ad_rgb-v{EXPORTER_VERSION}.npz").unlink()
+    mean, _, dof, what = suite.reference(case, 16 * 2048, None, True)
+    assert mean[0, 0, 0] == 3.0 and dof == 15 and "16 x 256 spp" in what
