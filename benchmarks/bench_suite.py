@@ -637,6 +637,8 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if str(ROOT) not in sys.path:            # `python benchmarks/bench_suite.py` from a checkout
+        sys.path.insert(0, str(ROOT))
     if argv[:1] == ["--worker"]:
         return worker_main(argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
