@@ -690,12 +690,16 @@ def main(argv=None) -> int:
             f.write("\n" + ttable + "\n")
         plot_triangles(tri, args.plot, _load())
         print("\n" + ttable)
+        from mcvar.tracer import BVH_MIN_TRIANGLES
+
         mc = sorted((r for r in tri if r["engine"] == "mcvar default"), key=lambda r: r["triangles"])
-        if len(mc) > 1:
-            slope = np.polyfit(np.log([r["triangles"] for r in mc[1:] or mc]),
-                               np.log([1 / r["mpaths_per_s"] for r in mc[1:] or mc]), 1)[0]
-            print(f"mcvar default: seconds per path grow as triangles^{slope:.3f} from {mc[1]['triangles']} "
-                  f"triangles; {mc[-1]['triangles']:,} triangles at {mc[-1]['vs_box']:.2f}x the box's paths/s")
+        bvh = [r for r in mc if r["triangles"] >= BVH_MIN_TRIANGLES]      # the BVH's range
+        if len(bvh) > 1:
+            slope = np.polyfit(np.log([r["triangles"] for r in bvh]),
+                               np.log([1 / r["mpaths_per_s"] for r in bvh]), 1)[0]
+            print(f"mcvar default: seconds per path grow as triangles^{slope:.3f} from {bvh[0]['triangles']:,} "
+                  f"to {bvh[-1]['triangles']:,} triangles (the BVH); {mc[-1]['triangles']:,} triangles at "
+                  f"{mc[-1]['vs_box']:.2f}x the box's paths/s")
         print(f"saved {args.plot}")
     print(f"\nwrote {args.out}/suite.csv, suite.md{', triangles.csv' if not args.no_triangles else ''}; "
           f"{time.perf_counter() - t_start:.0f} s in all; load average now {_load()}")
