@@ -129,11 +129,12 @@ def _adaptive_workers(workers):
     one pool process) when this process may run on two CPUs or more, else one.
 
     The rule, measured (docs/performance.md, 'Both cores under load'): on two
-    cores two workers beat one at every load tried, 1.6x with the second core
-    free and 0.70-0.79x one worker's time at load 10-12 with one or two busy
-    loops added (the scheduler shares by process, so two processes get more of
-    a busy machine than one; the caller takes batches the pool has not
-    started). On one usable CPU a second process only time-shares it.
+    cores two workers took 0.62-0.89x one worker's time in seven of eight
+    conditions (load 3-12, with zero to two busy loops added; the scheduler
+    shares by process, and the caller takes batches the pool has not
+    started), and 1.30x in one, at a load average the load cannot tell from
+    a 0.62x case, so the load average is not consulted. On one usable CPU a
+    second process only time-shares it.
     """
     return min(2, _usable_cpus()) if workers is None else workers
 
