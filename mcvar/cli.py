@@ -115,11 +115,28 @@ def _scene_file_defaults(args, scene, method: str) -> None:
         args.rr_depth = given["rr_depth"]
 
 
+def _usable_cpus() -> int:
+    """CPUs this process may run on: its affinity mask (``taskset``, a container's
+    cpuset), not the machine's count, where the platform tells."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def _adaptive_workers(workers):
-    """Processes of an adaptive render: ``workers``, or by default both cores (the
-    caller and one pool process; docs/performance.md: 1.6x on a 2-core machine
-    whose second core is free, about 5% slower than one when it is busy)."""
-    return min(2, os.cpu_count() or 1) if workers is None else workers
+    """Processes of an adaptive render: ``workers``, or by default two (the caller and
+    one pool process) when this process may run on two CPUs or more, else one.
+
+    The rule, measured (docs/performance.md, 'Both cores under load'): on two
+    cores two workers took 0.62-0.89x one worker's time in seven of eight
+    conditions (load 3-12, with zero to two busy loops added; the scheduler
+    shares by process, and the caller takes batches the pool has not
+    started), and 1.30x in one, at a load average the load cannot tell from
+    a 0.62x case, so the load average is not consulted. On one usable CPU a
+    second process only time-shares it.
+    """
+    return min(2, _usable_cpus()) if workers is None else workers
 
 
 def _adaptive_default(args, method) -> bool:

@@ -79,3 +79,19 @@ def test_render_method_flag_its_alias_and_the_registry_in_the_help(tmp_path, cap
     assert "max_memory" in capsys.readouterr().err
     help_text = build_parser()._subparsers._group_actions[0].choices["render"].format_help()
     assert all(name in help_text.replace("\n", " ").replace("  ", " ") for name in METHODS)
+
+
+def test_adaptive_workers_follow_the_cpus_this_process_may_use(monkeypatch):
+    """``mcvar render``'s default split: two workers when the process may run on two
+    CPUs or more (the affinity mask, not the machine's count), one when pinned to one;
+    an explicit ``--workers`` is kept."""
+    from mcvar import cli
+
+    monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid: {3}, raising=False)
+    assert cli._adaptive_workers(None) == 1
+    assert cli._adaptive_workers(2) == 2
+    monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    assert cli._adaptive_workers(None) == 2
+    monkeypatch.delattr(cli.os, "sched_getaffinity", raising=False)
+    monkeypatch.setattr(cli.os, "cpu_count", lambda: 1)
+    assert cli._adaptive_workers(None) == 1
