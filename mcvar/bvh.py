@@ -489,14 +489,16 @@ class _Chunk:
         w, n, dt = bvh.width, o.shape[1], bvh.dtype
         self.bvh, self.w, self.eps, self.any_hit = bvh, w, dt.type(eps), any_hit
         self.shift = w.bit_length() - 1
-        rays = np.empty((10, n, w), dt)
+        col = np.empty((10, n), dt)
         with np.errstate(divide="ignore", invalid="ignore"):
             safe = np.where(np.abs(d) < TINY, np.copysign(np.asarray(TINY, dt), d), d)
-            rays[0:3] = (1.0 / safe)[:, :, None]
+            np.divide(1.0, safe, out=col[0:3])
         self.best = np.array(tmax, dtype=dt, copy=True)
-        rays[3] = self.best[:, None]
-        rays[4:7] = o[:, :, None]
-        rays[7:10] = d[:, :, None]
+        col[3] = self.best
+        col[4:7] = o
+        col[7:10] = d
+        # repeated over the slots by np.repeat (measured twice as fast as a broadcast assignment)
+        rays = np.repeat(col, w, axis=1).reshape(10, n, w)
         self.rays = rays
         self.box_rays, self.leaf_rays = rays[0:7], rays[3:10]
         self.prim = np.full(n, -1, np.int64)
