@@ -7,7 +7,11 @@ handful of array operations (centroid bounds by ``reduceat`` over each node's
 contiguous run of triangles, bin counts and bin boxes by ``bincount`` /
 ``ufunc.at``, prefix sweeps for the SAH cost of every candidate plane, a
 stable sort to partition), so the build costs O(T) NumPy work per level and
-O(T log T) in all, with no Python loop over nodes. The binary tree is then
+O(T log T) in all, with no Python loop over nodes. While a node holds
+triangles of several supporting planes it bins the planes' centroids (all
+triangles of a plane on one side), so the tree's top is a tree over the
+scene's planes and every node below it is flat (:func:`_planes`; the greedy
+SAH alone cut rooms into octants whose boxes fill the room). The binary tree is then
 collapsed into a ``WIDTH``-wide one (every wide node holds the boxes of the
 binary nodes ``log2(WIDTH)`` levels below it; the MBVH / BVH8 of Dammertz et
 al. 2008, 'Shallow Bounding Volume Hierarchies for Fast SIMD Ray Tracing of
