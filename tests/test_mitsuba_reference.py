@@ -21,6 +21,11 @@ skewness test on every block, Sidak-corrected); the sample counts in
 :data:`PLAN` are the ones measured to pass it, and where no affordable count
 does, the pair is in :data:`HEAVY_TAILED` with the reason and the
 well-behaved comparison that replaces it (docs/mitsuba.md, 'Heavy tails').
+
+A scene in :data:`REGIONS` is compared on part of its image only:
+``cornell-caustic`` off the glass sphere and the small light (against
+Mitsuba's particle tracer, which renders the glass black as mcvar's ``light``
+does; docs/mitsuba.md, 'The caustic scene').
 """
 from __future__ import annotations
 
