@@ -36,21 +36,9 @@ import numpy as np
 from mcvar.experiments.compare import equal_time_render, scene_reference
 from mcvar.integrators.photon import sees_emitters
 from mcvar.scene import load_scene
-from mcvar.tracer import Tracer
+from mcvar.experiments.slide_pairs import caustic_pixels
 
 SCENE = "cornell-caustic"
-
-
-def caustic_pixels(scene, res: int) -> np.ndarray:
-    """Pixels whose centre ray first hits the floor within two radii of the sphere's contact point."""
-    pix = np.arange(res * res)
-    d = scene.camera.ray_directions((res, res), pix, np.full((pix.size, 2), 0.5))
-    o = np.broadcast_to(scene.camera.position, d.shape)
-    hit = Tracer(scene).intersect(o, d)
-    p = o + d * np.where(np.isfinite(hit.t), hit.t, 0.0)[:, None]
-    c, r = scene.sphere_centers[0], scene.sphere_radii[0]
-    near = (np.abs(p[:, 1]) < 1.0) & (np.hypot(p[:, 0] - c[0], p[:, 2] - c[2]) < 2.0 * r)
-    return near.reshape(res, res)
 
 
 def _value(text: str):

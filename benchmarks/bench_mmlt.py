@@ -1,6 +1,9 @@
 """MMLT vs path, bdpt and pssmlt at equal time on cornell-door (prints tables; not a test).
 
-Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_mmlt.py [--seconds 2] [--seeds 3] [--res 32] [--slit 20]``
+Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_mmlt.py [--seconds 2] [--seeds 3] [--res 32] [--slit 20]
+[--center 278] [--height 300] [--methods path,bdpt,pssmlt,mmlt] [--mmlt-options '{"chains": 4096}']``
+(the door's geometry as ``cornell_door_scene``'s parameters; ``--center 200 --height 120`` puts the slit
+behind the short block, where the camera sees neither the closet nor any directly lit surface)
 
 Every method renders at the same fixed depth (``--depth``, default
 ``mmlt.DEFAULT_MAX_DEPTH`` = 5 segments: MMLT's state has a fixed size) so
@@ -117,15 +120,19 @@ def main():
     ap.add_argument("--ref-spp", type=int, default=32768)
     ap.add_argument("--ref-method", default="path", help="path (default: 2x bdpt's efficiency here) or bdpt")
     ap.add_argument("--slit", type=float, default=20.0)
+    ap.add_argument("--center", type=float, default=278.0)
+    ap.add_argument("--height", type=float, default=300.0)
+    ap.add_argument("--methods", default="path,bdpt,pssmlt,mmlt", help="comma-separated; the first is the baseline")
+    ap.add_argument("--mmlt-options", default="{}", help='JSON options of mmlt, e.g. \'{"chains": 4096}\'')
     ap.add_argument("--trade", action="store_true", help="also the chains x sigma table of mmlt")
     args = ap.parse_args()
     print(f"load average before: {os.getloadavg()} on {os.cpu_count()} CPUs")
-    scene = load_scene("cornell-door", slit=args.slit)
-    name = f"cornell-door-slit{args.slit:g}"
+    scene = load_scene("cornell-door", slit=args.slit, center=args.center, height=args.height)
+    name = f"cornell-door-slit{args.slit:g}-center{args.center:g}-height{args.height:g}"
     ref, noise = reference(scene, name, args.res, args.depth, args.ref_spp, method=args.ref_method)
     print(f"== {name} {args.res}x{args.res}, max_depth {args.depth}, {args.seconds:g} s per render, "
           f"{args.seeds} seeds; reference mean {ref.mean():.4g}, its noise {noise:.3g} (subtracted)")
-    rows = [("path", "path", {}), ("bdpt", "bdpt", {}), ("pssmlt", "pssmlt", {}), ("mmlt", "mmlt", {})]
+    rows = [(m, m, json.loads(args.mmlt_options) if m == "mmlt" else {}) for m in args.methods.split(",")]
     table(scene, name, args.res, args.depth, args.seconds, args.seeds, rows, ref, noise)
     if args.trade:
         rows = [("path", "path", {})] + [(f"mmlt chains={c} sigma={s}", "mmlt", dict(chains=c, sigma=s))

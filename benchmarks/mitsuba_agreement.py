@@ -67,7 +67,7 @@ def main(argv=None):
             start = time.process_time()
             images = T.mcvar_replicates(recipe, method, spp, reps)
             cpu = time.process_time() - start
-            s = T.agreement(images, T._case_name(recipe, m.fixed_depth))
+            s = T.agreement(images, T._case_name(recipe, m.fixed_depth), T.region_of(recipe))
             heavy = s["min_skew_p"] <= s["skew_p_each"]
             ok = s["min_p"] > s["p_each"]
             verdict = ("heavy-tailed" if heavy else "agrees" if ok else "**differs**") + (" (left out)" if note else "")

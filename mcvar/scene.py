@@ -1123,7 +1123,11 @@ def cornell_door_scene(slit: float = 20.0, wall_z: float = 400.0, height: float 
     found such a path, explores its neighbours. With the default height the
     camera sees the closet's lit floor and back wall through the slit but
     not the light itself (which would make a few pixels hold most of the
-    image's luminance, where MLT spends most of its mutations).
+    image's luminance, where MLT spends most of its mutations). With
+    ``slit=5, center=200, height=120`` the door is low and behind the short
+    block: the camera sees neither the closet nor any surface the light
+    reaches directly (direct lighting is 0 in every pixel), as in Veach's
+    scene; docs/mcmc.md measures the methods on it.
 
     Parameters
     ----------

@@ -28,9 +28,9 @@ __all__ = ["Hit", "Tracer", "BVH_MIN_TRIANGLES", "ACCELERATIONS"]
 
 #: ``accel='auto'`` uses the BVH (:mod:`mcvar.bvh`) for scenes with more triangles
 #: than this, brute force over triangle groups below. Measured (``benchmarks/bench_triangles.py``,
-#: the subdivided Cornell box, path 64x64 at 32 spp, CPU time, load 6-9): brute force ahead at
-#: 272 triangles (0.57 against 0.48 M paths/s), the 4-wide BVH at 482 (0.45 against 0.37) and
-#: 8x ahead at 1,922 (0.44 against 0.05).
+#: the subdivided Cornell box, path 64x64 at 32 spp, CPU time, load 4-5): brute force ahead at
+#: 122 triangles (0.91 against 0.66 M paths/s), a tie at 272 (0.61 against 0.63; 0.60 against
+#: 0.57 in a second run), the 4-wide BVH ahead at 482 (0.63 against 0.40) and 10x at 1,922.
 BVH_MIN_TRIANGLES = 400
 #: Intersection strategies of :class:`Tracer`.
 ACCELERATIONS = ("auto", "bvh", "groups")

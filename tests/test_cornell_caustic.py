@@ -28,6 +28,7 @@ import pytest
 from scipy import ndimage
 from scipy.stats import norm
 
+from mcvar.experiments.slide_pairs import caustic_pixels
 from mcvar.integrators import render
 from mcvar.scene import load_scene
 from mcvar.testing import sidak_significance
@@ -41,19 +42,8 @@ PATH_SPP = 4096           # path's per-sample variance on the caustic, from enou
 
 
 def caustic_mask(scene):
-    """Pixels whose centre ray first hits the floor within 2 radii of the
-    sphere's contact point (where the focused light lands). Pixels that see
-    the sphere itself are left out: through the glass they see the light,
-    whose slivers are heavy-tailed for every method alike (BDPT reaches
-    them with path tracing's own strategy)."""
-    pix = np.arange(RES * RES)
-    d = scene.camera.ray_directions((RES, RES), pix, np.full((pix.size, 2), 0.5))
-    o = np.broadcast_to(scene.camera.position, d.shape)
-    hit = Tracer(scene).intersect(o, d)
-    p = o + d * np.where(np.isfinite(hit.t), hit.t, 0.0)[:, None]
-    c, r = scene.sphere_centers[0], scene.sphere_radii[0]
-    near = (np.abs(p[:, 1]) < 1.0) & (np.hypot(p[:, 0] - c[0], p[:, 2] - c[2]) < 2.0 * r)
-    return near.reshape(RES, RES)
+    """The caustic's pixels at this file's resolution (:func:`mcvar.experiments.slide_pairs.caustic_pixels`)."""
+    return caustic_pixels(scene, RES)
 
 
 def test_the_light_is_a_hundredth_of_the_area_at_the_same_power():

@@ -214,3 +214,23 @@ def test_caustic_light_paths_give_the_image_of_one_worker_on_two():
     np.testing.assert_array_equal(a.image, b.image)
     c = render_adaptive(scene, workers=1, **{**kw, "caustics": "path"})
     assert not np.array_equal(a.image, c.image)
+
+
+@pytest.mark.parametrize("name", ["cornell", "cornell-spheres", "cornell-point"])
+def test_one_tracer_builds_its_scene_tables_once_and_traces_the_same_paths(name):
+    """SceneTables are cached on the tracer (per light sampling): a second batch through the same
+    tracer reads the first batch's tables and gives, path by path, what a fresh tracer gives."""
+    from mcvar.integrators.state import SceneTables
+
+    scene = load_scene(name)
+    pixel, u = _inputs(0)
+    shared = Tracer(scene)
+    first, _ = trace_camera_paths(scene, RES, pixel, u, rng=1, tracer=shared)
+    tables = SceneTables.of(scene, shared, "area")
+    again, _ = trace_camera_paths(scene, RES, pixel, u, rng=1, tracer=shared)
+    fresh, _ = trace_camera_paths(scene, RES, pixel, u, rng=1, tracer=Tracer(scene))
+    assert SceneTables.of(scene, shared, "area") is tables
+    assert SceneTables.of(scene, shared, "solid_angle") is not tables
+    assert SceneTables.of(load_scene(name), shared, "area") is not tables     # another scene object
+    np.testing.assert_array_equal(again, first)
+    np.testing.assert_array_equal(fresh, first)

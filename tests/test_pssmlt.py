@@ -144,6 +144,28 @@ def test_cornell_door_geometry_and_light_only_through_the_slit():
     assert w - n > 5 * se, (w, n, se)
 
 
+def test_cornell_door_behind_the_block_hides_the_closet_and_every_directly_lit_surface():
+    """The door configuration of docs/mcmc.md's 'door behind the block' (slit 5 wide, 120 high at
+    x = 200): no primary ray passes the partition (the short block hides the slit), and no point the
+    camera sees is lit directly (direct lighting is exactly 0), while the room is lit (indirectly)."""
+    kw = dict(slit=5.0, center=200.0, height=120.0)
+    scene = load_scene("cornell-door", **kw)
+    res = (64, 64)
+    n = res[0] * res[1]
+    d = scene.camera.ray_directions(res, np.arange(n), np.random.default_rng(0).random((n, 2)))
+    o = np.broadcast_to(scene.camera.position, (n, 3))
+    hit = Tracer(scene).intersect(o, d)
+    z = o[:, 2] + d[:, 2] * np.where(hit.hit, hit.t, 0.0)
+    assert hit.hit.mean() > 0.5 and np.all(z < 400.5)  # float32 hits; misses: outside the open room
+    direct = render(scene, integrator="direct", spp=64, res=16, rng=1)
+    assert np.count_nonzero(direct.image) == 0
+    lit = render(scene, integrator="path", spp=4096, res=4, rng=1, max_depth=5)
+    assert lit.image.mean() > 5 * np.sqrt((lit.variance / lit.spp).sum()) / lit.image.size
+    # the default door is seen through: some primary rays reach the closet
+    hit = Tracer(load_scene("cornell-door")).intersect(o, d)
+    assert np.count_nonzero(o[:, 2] + d[:, 2] * np.where(hit.hit, hit.t, 0.0) > 400.5) > 0
+
+
 # -- the lockstep step, the bootstrap's b, workers (issue 22) ------------------------------------
 
 ALPHA = 1e-3

@@ -30,12 +30,36 @@ from .compare_matrix import _region_slices, measure_compare
 
 __all__ = ["CAUSTIC_REGION", "SPHERES_CAUSTIC_REGION", "METROPOLIS_METHODS", "PAIRS", "measure_pairs",
            "metropolis_methods", "forward_pinhole_hits", "StrategyGrid", "measure_strategy_grid",
-           "STRATEGY_COLUMNS"]
+           "STRATEGY_COLUMNS", "caustic_pixels"]
 
 #: The caustic on ``cornell-caustic``'s floor: (row0, row1, col0, col1) fractions of the image
 #: (0-based rows 27-29, columns 8-23 of 32 pixels: the floor within two sphere radii of the contact
-#: point, the rows that see the sphere itself left out; ``tests/test_cornell_caustic.caustic_mask``).
+#: point, the rows that see the sphere itself left out: :func:`caustic_pixels`).
 CAUSTIC_REGION = (0.845, 0.935, 0.25, 0.75)
+
+def caustic_pixels(scene, res: int) -> np.ndarray:
+    """The pixels of ``cornell-caustic``'s caustic, as a ``(res, res)`` boolean mask.
+
+    Those whose centre ray first hits the floor within two sphere radii of the
+    glass sphere's contact point (where the focused light lands). Pixels that
+    see the sphere itself are left out (they hit the sphere first): through
+    the glass they see the small light, whose slivers are heavy-tailed for
+    every method alike. :data:`CAUSTIC_REGION` is this mask's bounding box at
+    32 x 32; ``benchmarks/bench_caustic.py`` and ``tests/test_cornell_caustic.py``
+    measure on it.
+    """
+    from ..tracer import Tracer
+
+    res = check_count(res, "res")
+    pix = np.arange(res * res)
+    d = scene.camera.ray_directions((res, res), pix, np.full((pix.size, 2), 0.5))
+    o = np.broadcast_to(scene.camera.position, d.shape)
+    hit = Tracer(scene).intersect(o, d)
+    p = o + d * np.where(np.isfinite(hit.t), hit.t, 0.0)[:, None]
+    c, r = scene.sphere_centers[0], scene.sphere_radii[0]
+    near = (np.abs(p[:, 1]) < 1.0) & (np.hypot(p[:, 0] - c[0], p[:, 2] - c[2]) < 2.0 * r)
+    return near.reshape(res, res)
+
 
 #: The caustic under ``cornell-spheres``' glass sphere (rows 26-31, columns 17-24 of 32 pixels;
 #: where the BDPT reference exceeds depth-2 path tracing).

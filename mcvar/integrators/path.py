@@ -173,7 +173,7 @@ def trace_camera_paths(scene, res, pixel, u, *, rng=None, tracer: Tracer | None 
 
 def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings):
     """The loops' common entry: rays SoA (3, n), the method ``name``'s strategies."""
-    tables = SceneTables(scene, tracer, Emitters(scene, settings.light_sampling))
+    tables = SceneTables.of(scene, tracer, settings.light_sampling)
     if settings.kernel == "lambertian":
         missing = tables.lambertian_missing(tables.emitters)
         if missing:
