@@ -905,6 +905,17 @@ def pixel_samples(name: str, n_pixels, spp, *, dim: int = 2, rng=None) -> np.nda
     if SAMPLERS[name].square:
         _integer_root(spp, 2, name, "spp")  # clear error before any work
     _check_memory(spp, max(d, 2), "pixel_samples", what="spp", sets=n_pixels)
+    if name == "sobol" and SAMPLERS[name].pixel_sets is _sobol_pixels:
+        # the same draws, written as rows (no per-pair float/uint64 round trips, no
+        # gather of interleaved pairs), then laid out (n_pixels, spp, d) in one copy
+        cols = pixel_sample_columns(name, n_pixels, spp, dim=d, rng=rng)
+        return np.ascontiguousarray(cols.reshape(d, n_pixels, spp).transpose(1, 2, 0))
+    return _pixel_samples_by_pairs(name, n_pixels, spp, d, rng)
+
+
+def _pixel_samples_by_pairs(name: str, n_pixels: int, spp: int, d: int, rng) -> np.ndarray:
+    """:func:`pixel_samples` pair by pair (every sampler; sobol's rows in
+    :func:`pixel_sample_columns` give the same values faster)."""
     pairs = (d + 1) // 2
     streams = as_rng(rng).spawn(pairs)
     out = np.empty((n_pixels, spp, 2 * pairs))

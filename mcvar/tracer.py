@@ -56,6 +56,39 @@ class Hit:
         return self.prim >= 0
 
 
+#: OpenBLAS runs a matrix product on one thread when ``rows x columns x inner``
+#: is below ``SMP_THRESHOLD_MIN x GEMM_MULTITHREAD_THRESHOLD`` = 65536 x 4
+#: (interface/gemm.c); above it, its threads fight the render's worker
+#: processes for the two cores.
+_BLAS_ONE_THREAD = 65536 * 4
+
+
+def _one_thread_product(a, b):
+    """``a @ b`` for a small ``a`` (r, c) and a wide ``b`` (c, m), in column
+    chunks small enough that OpenBLAS computes each on one thread.
+
+    The same numbers as ``a @ b`` (each entry is the same length-``c`` dot
+    product, only the columns are split). Measured: the default render of the
+    122-triangle box (64 x 64, 64 spp, two workers) took 2.4-2.5 s of CPU with
+    OpenBLAS's threads on this product and 0.48 s with
+    ``OPENBLAS_NUM_THREADS=1`` (docs/performance.md, 'Cost per path and
+    image size'); chunking gives the one-thread figure whatever the
+    environment says.
+    """
+    r, c = a.shape
+    m = b.shape[1]
+    step = max(1, (_BLAS_ONE_THREAD - 1) // (r * c))
+    if m <= step:
+        return a @ b
+    # even chunks: no narrow last chunk (a one-column product goes to
+    # another kernel, whose float32 rounding differs from the GEMM's)
+    step = -(-m // -(-m // step))
+    out = np.empty((r, m), dtype=np.result_type(a, b))
+    for start in range(0, m, step):
+        np.matmul(a, b[:, start:start + step], out=out[:, start:start + step])
+    return out
+
+
 class _Block:
     """One triangle group's stacked maps (rows: b1 of all, b2 of all, h of all)."""
 
@@ -304,8 +337,8 @@ class Tracer:
 
     def _block_t_inner(self, blk, o4, d):
         k = blk.k
-        ot = blk.mat_o @ o4
-        dt = blk.mat_d @ d
+        ot = _one_thread_product(blk.mat_o, o4)
+        dt = _one_thread_product(blk.mat_d, d)
         t = ot[2 * k:]
         t /= dt[2 * k:]
         b1 = dt[:k]

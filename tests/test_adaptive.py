@@ -224,3 +224,41 @@ def test_ctrl_c_keeps_finished_batches_and_falls_back_to_the_pilot(cornell):
     assert np.array_equal(part.image[finished], full.image[finished])
     assert np.all(part.spp_map[~finished] == 4)
     assert np.all(np.isfinite(part.image)) and part.image[~finished].mean() > 0
+
+
+def test_pilot_batches_grow_with_a_large_pilot():
+    """Pilot batches of PILOT_PATHS_PER_BATCH until the pilot fills PILOT_BATCHES of
+    them (64 x 64 at 256 spp keeps its batches), then PILOT_BATCHES batches, never
+    more than PATHS_PER_BATCH paths."""
+    from mcvar.integrators.allocation import PATHS_PER_BATCH, PILOT_BATCHES, PILOT_PATHS_PER_BATCH, \
+        pilot_batch_paths
+
+    assert pilot_batch_paths(64 * 64 * 8) == PILOT_PATHS_PER_BATCH == 4096
+    assert pilot_batch_paths(16) == PILOT_PATHS_PER_BATCH
+    assert pilot_batch_paths(256 * 256 * 4) == 256 * 256 * 4 // PILOT_BATCHES == 32768
+    assert pilot_batch_paths(2 ** 39) == PATHS_PER_BATCH
+
+
+def test_larger_pilot_batches_stay_unbiased(cornell):
+    """128 x 128 at 16 spp: the pilot's 65,536 paths in 8 batches of 8,192 (the
+    default) instead of 16 of 4,096 (before): another pilot, another allocation,
+    the same expectation. Per channel, the image means over all pixels and off
+    the light's pixels agree within 5 standard errors (independent seeds), and
+    the two renders did allocate differently (the test compares two estimators,
+    not one twice)."""
+    from mcvar.integrators import VisibleLights
+    from mcvar.integrators.allocation import PILOT_PATHS_PER_BATCH, Adaptive
+
+    res, spp = 128, 16
+    new = render_adaptive(cornell, spp=spp, res=res, rng=SEED)
+    old = render(cornell, spp=spp, res=res, sampler="sobol", rng=SEED + 1,
+                 allocation=Adaptive(pilot_paths_per_batch=PILOT_PATHS_PER_BATCH), **ADAPTIVE_SETTINGS)
+    same_seed_old = render(cornell, spp=spp, res=res, sampler="sobol", rng=SEED,
+                           allocation=Adaptive(pilot_paths_per_batch=PILOT_PATHS_PER_BATCH), **ADAPTIVE_SETTINGS)
+    assert not np.array_equal(new.spp_map, same_seed_old.spp_map)
+    lit = VisibleLights(cornell).image((res, res))[:, 0] > 0
+    for mask in (np.ones(res * res, bool), ~lit):
+        d = (new.image - old.image).reshape(-1, 3)[mask]
+        v = (new.standard_error ** 2 + old.standard_error ** 2).reshape(-1, 3)[mask]
+        k = mask.sum()
+        assert np.all(np.abs(d.mean(axis=0)) < 5 * np.sqrt(v.sum(axis=0)) / k)

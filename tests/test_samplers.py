@@ -491,3 +491,17 @@ def test_default_pixel_sets_are_shifted_copies_of_one_base_set():
     assert len({tuple(s) for s in shift[:, 0, :]}) == 5   # a different shift per pixel
     with pytest.raises(ValueError, match=r"shape \(16, 2\)"):
         S.shifted_pixel_sets(lambda n, rng=None: np.zeros((n, 3)), 2, 16, np.random.default_rng(1))
+
+
+@pytest.mark.parametrize("n_pixels, spp, dim", [(5, 16, 2), (7, 8, 5), (3, 1, 20), (64, 4, 7)])
+def test_sobol_pixel_samples_by_rows_equal_the_pairs(n_pixels, spp, dim):
+    """pixel_samples('sobol') is written from pixel_sample_columns' rows; the same
+    values, bit for bit, as the generic pair-by-pair construction (XOR shift per
+    pixel, padding shuffle per pair) from the same rng, odd dims included."""
+    from mcvar.samplers import _pixel_samples_by_pairs
+
+    fast = S.pixel_samples("sobol", n_pixels, spp, dim=dim, rng=11)
+    slow = _pixel_samples_by_pairs("sobol", n_pixels, spp, dim, 11)
+    assert fast.shape == slow.shape == (n_pixels, spp, dim)
+    np.testing.assert_array_equal(fast, slow)
+    assert fast.flags.c_contiguous

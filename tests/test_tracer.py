@@ -204,3 +204,21 @@ def test_occluded_with_spheres_and_without_triangles():
     furnace = Tracer(load_scene("furnace"))
     inside = furnace.occluded(np.zeros((2, 3)), [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], [0.5, 2.0])
     assert inside.tolist() == [False, True]
+
+
+@pytest.mark.parametrize("rows, inner, m", [(3, 4, 10), (3, 4, 70_000), (48, 4, 65_536), (6, 3, 43_691),
+                                            (48, 3, 1_821), (48, 4, 1_366), (24, 4, 65_535), (96, 3, 3_000)])
+def test_one_thread_product_is_the_matrix_product(rows, inner, m):
+    """The tracer's block product in column chunks (OpenBLAS on one thread) gives
+    exactly ``a @ b``, float32 and float64, for column counts just above a
+    chunk (where a narrow last chunk would round differently)."""
+    from mcvar.tracer import _BLAS_ONE_THREAD, _one_thread_product
+
+    rng = np.random.default_rng(rows * m)
+    for dtype in (np.float32, np.float64):
+        a = rng.standard_normal((rows, inner)).astype(dtype)
+        b = rng.standard_normal((inner, m)).astype(dtype)
+        got = _one_thread_product(a, b)
+        assert got.dtype == dtype and got.shape == (rows, m)
+        np.testing.assert_array_equal(got, a @ b)
+    assert (_BLAS_ONE_THREAD - 1) // (rows * inner) * rows * inner < _BLAS_ONE_THREAD   # one thread per chunk

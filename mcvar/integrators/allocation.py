@@ -43,7 +43,8 @@ from .settings import STRATEGIES
 from .stream import WHOLE_SET_FLOATS, whole_dims, whole_pattern
 
 __all__ = ["Uniform", "Adaptive", "AdaptiveRender", "allocate", "get_allocation", "ALLOCATIONS",
-           "PATHS_PER_BATCH", "ADAPTIVE_DIM", "PILOT_MAX_DEPTH", "PILOT_PATHS_PER_BATCH"]
+           "PATHS_PER_BATCH", "ADAPTIVE_DIM", "PILOT_MAX_DEPTH", "PILOT_PATHS_PER_BATCH", "PILOT_BATCHES",
+           "pilot_batch_paths"]
 
 #: Paths per batch when ``batch_spp`` is not given: big enough that per-bounce
 #: overhead is small, small enough that two processes do not fight over the
@@ -63,9 +64,29 @@ ADAPTIVE_DIM = 6
 #: does (measured: adaptive 256-spp Cornell 0.677 -> 0.643 s, MSE unchanged).
 PILOT_MAX_DEPTH = 5
 
-#: Paths per pilot batch: smaller than the second stage's so that the pilot,
-#: a few spp over the whole image, still spreads over two or more workers.
+#: Paths per pilot batch at least: smaller than the second stage's so that
+#: the pilot, a few spp over the whole image, still spreads over two or more
+#: workers.
 PILOT_PATHS_PER_BATCH = PATHS_PER_BATCH // 16
+#: Batches a large pilot is cut into (:func:`pilot_batch_paths`): enough for
+#: two workers to share it evenly.
+PILOT_BATCHES = 8
+
+
+def pilot_batch_paths(pilot_paths: int) -> int:
+    """Paths per pilot batch of a pilot of ``pilot_paths`` paths (the default
+    of :attr:`Adaptive.pilot_paths_per_batch`): :data:`PILOT_PATHS_PER_BATCH`
+    until the pilot fills :data:`PILOT_BATCHES` such batches, then the pilot
+    in ``PILOT_BATCHES`` batches, at most :data:`PATHS_PER_BATCH` paths each.
+
+    A batch has a fixed cost per bounce (a few dozen NumPy calls whatever its
+    size), so a 4,096-path pilot batch cost 1.4-1.5 s per M paths against
+    0.7-0.9 in batches of 16,384-65,536 (Cornell box, 256 x 256, 64 spp:
+    the pilot's 4 spp are 1/16 of the paths and were 8-10% of the time;
+    docs/performance.md, 'Cost per path and image size'). Up to 32,768
+    pilot paths (64 x 64 at 256 spp) the batches stay as they were.
+    """
+    return int(min(PATHS_PER_BATCH, max(PILOT_PATHS_PER_BATCH, pilot_paths // PILOT_BATCHES)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -291,8 +312,9 @@ class Adaptive:
         the default there is 0.5 (measured on the Cornell box, 64 x 64, 256
         spp, Sobol': MSE 1.65e-5 uniform, 1.45e-5 at 0.7, 1.20e-5 at 0.5,
         1.22e-5 at 0.3; docs/performance.md).
-    pilot_paths_per_batch : int
-        Paths per pilot batch (default :data:`PILOT_PATHS_PER_BATCH`).
+    pilot_paths_per_batch : int, optional
+        Paths per pilot batch (default :func:`pilot_batch_paths` of the
+        pilot's paths: :data:`PILOT_PATHS_PER_BATCH`, more for large images).
     spp_map : ndarray of int (H, W), optional
         The second stage's samples per pixel, given instead of found by a
         pilot (then ``pilot_spp`` must be None or 0): an oracle allocation,
@@ -313,7 +335,7 @@ class Adaptive:
     min_spp: int | None = None
     max_spp: int | None = None
     exponent: float | None = None
-    pilot_paths_per_batch: int = PILOT_PATHS_PER_BATCH
+    pilot_paths_per_batch: int | None = None
     spp_map: np.ndarray | None = None
 
     name = "adaptive"
@@ -340,8 +362,9 @@ class Adaptive:
             if not 0.0 <= float(e) <= 1.0:
                 raise ValueError(f"exponent must be in [0, 1]; got {e}")
             object.__setattr__(self, "exponent", float(e))
-        object.__setattr__(self, "pilot_paths_per_batch",
-                           check_count(self.pilot_paths_per_batch, "pilot_paths_per_batch"))
+        if self.pilot_paths_per_batch is not None:
+            object.__setattr__(self, "pilot_paths_per_batch",
+                               check_count(self.pilot_paths_per_batch, "pilot_paths_per_batch"))
         if self.spp_map is not None:
             m = np.asarray(self.spp_map)
             if m.ndim != 2 or not np.issubdtype(m.dtype, np.integer) or m.size == 0 or m.min() < 1:
@@ -375,7 +398,10 @@ class Adaptive:
             raise ValueError(f"pilot_spp + min_spp must be <= spp; got {pilot} + {lo} > {spp}")
         if hi < lo:
             raise ValueError(f"max_spp must be >= min_spp; got {hi} < {lo}")
-        return dataclasses.replace(self, pilot_spp=pilot, min_spp=lo, max_spp=hi, exponent=exponent)
+        per_batch = pilot_batch_paths(plan.n_pixels * pilot) if self.pilot_paths_per_batch is None \
+            else self.pilot_paths_per_batch
+        return dataclasses.replace(self, pilot_spp=pilot, min_spp=lo, max_spp=hi, exponent=exponent,
+                                   pilot_paths_per_batch=per_batch)
 
     def memory(self, plan) -> dict:
         return dict(batch_paths=PATHS_PER_BATCH, whole_floats=0, films=2)

@@ -161,9 +161,13 @@ def batch_stream(sampler: str, n_pix: int, spp: int, dim: int, whole, rng):
         return pixel_sample_columns(sampler, n_pix, spp, dim=dim, rng=rng).T
     # drop the first pair of the batch's own sets: it keeps the sampler's
     # order (pixel_samples' notes) and would correlate with the whole set's
-    # first pair; the later pairs are shuffled
-    rest = pixel_samples(sampler, n_pix, spp, dim=dim - have + 2, rng=rng)[:, :, 2:]
-    return np.ascontiguousarray(np.concatenate([whole, rest], axis=2)).reshape(n_pix * spp, dim)
+    # first pair; the later pairs are shuffled. Written as rows (dim, n), the
+    # matrix returned is their transpose, like the case without a whole set.
+    n = n_pix * spp
+    out = np.empty((dim, n))
+    out[:have] = np.moveaxis(whole, 2, 0).reshape(have, n)
+    out[have:] = pixel_sample_columns(sampler, n_pix, spp, dim=dim - have + 2, rng=rng)[2:]
+    return out.T
 
 
 def camera_rays(job, *, soa: bool = False):
