@@ -149,6 +149,14 @@ class Tracer:
     the light remain.
     """
 
+    def __getstate__(self):
+        """Pickled without the shading tables cached on it (``SceneTables.of``):
+        a tracer crosses to a worker inside every batch, and the tables, several
+        MB at 100k triangles, are rebuilt once in the process that reads them."""
+        state = dict(self.__dict__)
+        state.pop("_scene_tables", None)
+        return state
+
     def __init__(self, scene, *, dtype="float32", chunk: int = 2048, cull: bool = True, accel: str = "auto"):
         # duck-typed: mcvar.scene is the same layer, so it is not imported here
         if not all(hasattr(scene, a) for a in ("triangles", "sphere_centers", "prim_group", "ray_epsilon")):

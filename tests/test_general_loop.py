@@ -234,3 +234,19 @@ def test_one_tracer_builds_its_scene_tables_once_and_traces_the_same_paths(name)
     assert SceneTables.of(load_scene(name), shared, "area") is not tables     # another scene object
     np.testing.assert_array_equal(again, first)
     np.testing.assert_array_equal(fresh, first)
+
+
+def test_a_pickled_tracer_leaves_its_cached_tables_behind():
+    # batches carry the tracer to worker processes: the cache must not ride along
+    import pickle
+
+    from mcvar.integrators.state import SceneTables
+
+    scene = load_scene("cornell-spheres")
+    tracer = Tracer(scene)
+    bare = len(pickle.dumps(tracer))
+    SceneTables.of(scene, tracer, "area")
+    assert "_scene_tables" in vars(tracer)
+    copy = pickle.loads(pickle.dumps(tracer))
+    assert "_scene_tables" not in vars(copy) and len(pickle.dumps(tracer)) == bare
+    assert "_scene_tables" in vars(tracer)                 # the original keeps its cache
