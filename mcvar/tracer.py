@@ -204,6 +204,9 @@ class Tracer:
             # no per-group blocks and no shadow table (its size grows with T^2)
             self._bvh = _bvh.build_bvh(tri, dtype=self.dtype)
             self._cand = None
+            # the per-triangle maps serve only the groups' blocks: not kept (nor
+            # pickled into every batch: 14.7 MB of a 40 MB tracer at 87k triangles)
+            del self._inv, self._inv_o, self._offset
             return
         groups = scene.prim_group[:n_tri]
         self._blocks = [self._make_block(np.flatnonzero(groups == g), g > 0 and self.cull)

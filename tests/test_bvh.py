@@ -323,3 +323,12 @@ def test_planes_are_kept_whole_near_the_top():
     # centroid (the two halves of a non-planar quad) may add a few more
     assert mixed <= 4 * 17, mixed
     assert mixed_leaves <= 4, mixed_leaves
+
+
+def test_a_bvh_tracer_keeps_no_brute_force_maps():
+    # the per-triangle maps serve only the groups' blocks; a BVH tracer crosses to worker
+    # processes inside every batch, so it carries only what its traversal reads
+    scene = subdivide(load_scene("cornell"), 8)
+    bvh, groups = Tracer(scene, accel="bvh"), Tracer(scene, accel="groups")
+    for name in ("_inv", "_inv_o", "_offset"):
+        assert not hasattr(bvh, name) and hasattr(groups, name)
