@@ -417,6 +417,17 @@ def test_fixed_depth_chain_agrees_with_mitsuba(method, recipe, depth):
                   region_of(recipe))
 
 
+@pytest.mark.parametrize("recipe,plan", [("cornell-spheres", (256, 16)), ("cornell-caustic", (256, 16))])
+def test_caustics_by_light_tracing_agree_with_mitsuba(recipe, plan):
+    # mcvar render's default partition (caustics='light', mcvar.integrators.caustics): path
+    # tracing leaves every path whose light arrives through a specular vertex after a
+    # non-specular first vertex to light subpaths aimed at the specular spheres; the sum
+    # against Mitsuba's path. On cornell-caustic path tracing alone is heavy-tailed (above)
+    spp, reps = plan
+    images = mcvar_replicates(recipe, "path", spp, reps, caustics="light")
+    assert_agrees(images, recipe, f"path, caustics='light' ({reps} x {spp} spp) on {recipe}", region_of(recipe))
+
+
 # ---------------------------------------------------------------------------
 # cornell-caustic: the glass sphere's caustic under a light of 1/100 the area
 

@@ -43,23 +43,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import Frame
-from .emitters import LightOrigins
+from ..warps import _square_to_cosine_hemisphere_unchecked
 from .film import BatchJob, BatchResult, splat
-from .light import _Context, _bsdf_eval, _shading_normals, _unoccluded
+from .light import RR_MAX_VERTICES, _Context, _bsdf_eval, _shading_normals, _unoccluded
 from .registry import Method
-from .state import light_caustics_apply
+from .state import RR_START_DEPTH, light_caustics_apply
 
-__all__ = ["CAUSTICS", "light_caustics_apply", "caustic_splats", "CAUSTIC_METHOD", "CAUSTIC_PATH_FRACTION",
-           "MAX_SPECULAR"]
+__all__ = ["CAUSTICS", "AimedOrigins", "light_caustics_apply", "caustic_splats", "CAUSTIC_METHOD", "CAUSTIC_PATH_FRACTION"]
 
 #: Values of the ``caustics`` setting: ``path`` (path tracing finds them) or ``light``.
 CAUSTICS = ("path", "light")
 #: Light subpaths per camera path of the render (``caustics='light'``).
 CAUSTIC_PATH_FRACTION = 0.25
-#: Specular vertices after which a light subpath stops (glass keeps weight 1 on
-#: every bounce, so there is no roulette; 0.96^64 of a path stays inside a sphere
-#: by total internal reflection that long, far below anything seen).
-MAX_SPECULAR = 64
 #: Light subpaths per chunk.
 _CHUNK = 1 << 16
 
@@ -68,12 +63,121 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
-def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None = None):
-    """``n_paths`` light subpaths through one or more specular vertices, their first
+class AimedOrigins:
+    """Origins of the caustic light subpaths: a point on the one quad light, a
+    direction aimed at the specular spheres.
+
+    The point is uniform on the quad (density ``1 / A``); the direction is
+    drawn from the mixture ``p(w) = a cos(w) / pi + (1 - a) sum_j pi_j
+    1[w in C_j] / Omega_j``, where ``C_j`` is the cone of directions from the
+    point towards specular sphere ``j`` (half-angle ``asin(r / |c - p|)``,
+    solid angle ``Omega_j = 2 pi (1 - cos theta_j)``, sampled uniformly,
+    pbrt-v4's ``SampleUniformCone``) and ``pi_j`` is proportional to
+    ``Omega_j`` times the cosine at the light of the cone's direction nearest
+    the light's normal (0 when the whole cone lies behind the light, where it
+    emits nothing). The subpath's weight is ``Le cos / (p_A p(w))``, with
+    ``p(w)`` summed over every cone that contains ``w`` (they may overlap).
+
+    Every direction whose first hit is a specular sphere lies in its cone, so
+    ``p(w) > 0`` on every path the caustic stage counts, and without
+    specular triangles ``a = 0``: every subpath is aimed (the cosine density
+    sent 91.6% of them to a non-specular first vertex, where they stop).
+    With a specular triangle, whose directions the cones do not cover,
+    ``a = 1/2`` (with no specular sphere, ``a = 1``: the light's cosine density).
+    """
+
+    def __init__(self, scene):
+        self.p0, self.e1, self.e2 = scene.light_origin[0], scene.light_edge1[0], scene.light_edge2[0]
+        self.normal = scene.light_normal[0]
+        self.area = float(scene.light_area[0])
+        self.le = np.asarray(scene.light_radiance[0], dtype=np.float64)
+        delta = np.array([bool(getattr(m, "is_delta", False)) for m in scene.materials])
+        prim_mat = np.asarray(scene.prim_material, dtype=np.int64)
+        n_tri = scene.n_triangles
+        spec_sph = np.flatnonzero(delta[prim_mat[n_tri:]]) if scene.n_spheres else np.zeros(0, dtype=np.int64)
+        self.centers = np.asarray(scene.sphere_centers, dtype=np.float64)[spec_sph]
+        self.radii = np.asarray(scene.sphere_radii, dtype=np.float64)[spec_sph]
+        spec_tri = bool(n_tri and np.any(delta[prim_mat[:n_tri]]))
+        #: the cosine density's share of the mixture
+        self.cosine = 1.0 if not spec_sph.size else (0.5 if spec_tri else 0.0)
+
+    def _cones(self, p):
+        """Axes (J, m, 3), cosines of the half-angles and solid angles (J, m), choice weights (J, m)."""
+        v = self.centers[:, None, :] - p[None, :, :]
+        dist = np.sqrt(np.einsum("jmi,jmi->jm", v, v))
+        axis = v / dist[..., None]
+        sin2 = np.minimum((self.radii[:, None] / dist) ** 2, 1.0)
+        inside = dist <= self.radii[:, None]                    # the point inside a sphere: every direction
+        cos_max = np.where(inside, -1.0, np.sqrt(1.0 - sin2))
+        omega = 2.0 * np.pi * (1.0 - cos_max)
+        # angle of the cone's nearest direction to the normal: max(gamma - theta, 0)
+        gamma = np.arccos(np.clip(axis @ self.normal, -1.0, 1.0))
+        near = np.maximum(gamma - np.arccos(np.clip(cos_max, -1.0, 1.0)), 0.0)
+        weight = omega * np.maximum(np.cos(near), 0.0)
+        return axis, cos_max, omega, weight
+
+    def sample(self, u):
+        """Origins from ``u`` (m, 5) in [0, 1)^5: ``(p, w, beta)``, each (m, 3);
+        ``beta = Le cos / (p_A p(w))`` (0 where the light emits nothing along ``w``)."""
+        m = u.shape[0]
+        p = self.p0 + u[:, 0:1] * self.e1 + u[:, 1:2] * self.e2
+        nrm = self.normal
+        w = np.empty((m, 3))
+        a = self.cosine
+        use_cos = u[:, 2] < a
+        pdf = np.zeros(m)
+        ic = np.flatnonzero(use_cos)
+        if ic.size:
+            fr = Frame(np.broadcast_to(nrm, (ic.size, 3)))
+            x, y, z = _square_to_cosine_hemisphere_unchecked(u[ic, 3], u[ic, 4], np.float64)
+            w[ic] = fr.s * x[:, None] + fr.n * y[:, None] + fr.t * z[:, None]
+        if a < 1.0:
+            axis, cos_max, omega, weight = self._cones(p)
+            total = weight.sum(axis=0)
+            share = np.divide(weight, total, out=np.zeros_like(weight), where=total > 0)
+            ia = np.flatnonzero(~use_cos)
+            # the cone: u2 rescaled into [0, 1) picks j by the cumulative shares
+            v = (u[ia, 2] - a) / (1.0 - a)
+            cum = np.cumsum(share[:, ia], axis=0)
+            j = np.minimum((v[None, :] >= cum).sum(axis=0), len(self.radii) - 1)
+            ax, cm = axis[j, ia], cos_max[j, ia]
+            cos_t = 1.0 - u[ia, 3] * (1.0 - cm)
+            sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
+            phi = 2.0 * np.pi * u[ia, 4]
+            fr = Frame(ax)
+            w[ia] = fr.s * (sin_t * np.cos(phi))[:, None] + fr.n * cos_t[:, None] + fr.t * (sin_t * np.sin(phi))[:, None]
+            own = np.zeros((len(self.radii), m), dtype=bool)
+            own[j, ia] = True
+            dens = share / omega
+            pdf_cones = np.where(own | (np.einsum("jmi,mi->jm", axis, w) >= cos_max), dens, 0.0).sum(axis=0)
+            pdf += (1.0 - a) * pdf_cones
+        cos = w @ nrm
+        if a > 0.0:
+            pdf += a * np.maximum(cos, 0.0) / np.pi
+        ok = (cos > 0.0) & (pdf > 0.0)
+        beta = self.le[None, :] * np.where(ok, cos * self.area / np.where(ok, pdf, 1.0), 0.0)[:, None]
+        return p, w, beta
+
+
+def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None = None, *,
+                   rr_depth: int | None = None, rr_threshold: float = 1.0):
+    """``n_paths`` light subpaths whose first vertex is specular, every later
     non-specular vertex joined to the pinhole.
 
-    ``max_depth``: the camera paths' segment limit (None: unbounded); a path
-    ``E D S^j L`` has ``j + 2`` segments, so only ``j <= max_depth - 2`` are joined.
+    A subpath ``y_0 y_1 ...`` starts on the light; if ``y_1`` is not
+    specular it stops there (path tracing has every path whose light arrives
+    from a non-specular vertex). Otherwise it walks on by BSDF sampling
+    through any material, and each non-specular vertex ``y_i`` (``i >= 2``)
+    is joined to the pinhole (strategy ``(s, t = 1)``, weight 1): the path
+    ``E y_i ... y_1 y_0``, whose first camera vertex is non-specular and
+    whose last vertex before the light is specular, the paths
+    :attr:`~mcvar.integrators.state.Transport.caustic_light` leaves out.
+
+    ``max_depth``: the camera paths' segment limit (None: unbounded, with
+    Russian roulette on the subpath's throughput relative to its start from
+    ``rr_depth`` segments on, survival ``min(0.95, beta / rr_threshold)``, the
+    rule of :func:`mcvar.integrators.state.roulette`); a join at ``y_i`` makes
+    a path of ``i + 1`` segments, so only ``i <= max_depth - 1`` are joined.
 
     Returns ``(sum, rays)``: ``sum`` (W H, 3) of the splats, so that the
     image of these paths is ``sum W H / n_paths`` (the convention of
@@ -81,59 +185,66 @@ def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None 
     """
     w, h = res
     image = np.zeros((w * h, 3))
-    origins = LightOrigins(scene)
-    ctx = _Context(scene, tracer, origins, res)
+    aimed = AimedOrigins(scene)
+    ctx = _Context(scene, tracer, None, res)
     eps, flips, delta_mat = ctx.eps, ctx.flips, ctx.delta_mat
     prim_mat = np.asarray(scene.prim_material)
+    materials = scene.materials
+    roulette = max_depth is None
+    rr_start = RR_START_DEPTH if rr_depth is None else rr_depth
+    last = RR_MAX_VERTICES if max_depth is None else min(RR_MAX_VERTICES, max_depth - 1)
     rays = 0
     for a in range(0, n_paths, _CHUNK):
         m = min(_CHUNK, n_paths - a)
-        u = rng.random((m, 4))
-        s = origins.sample(u[:, 0:2], u[:, 2:4])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ok = (s["pdf_pos"] > 0) & (s["pdf_dir"] > 0)
-            beta = s["le"] * np.where(ok, s["cos"] / np.where(ok, s["pdf_pos"] * s["pdf_dir"], 1.0), 0.0)[:, None]
-        o = s["p"] + s["n"] * eps
-        d = s["w"]
-        through = np.zeros(m, dtype=bool)          # a specular vertex passed
-        last = MAX_SPECULAR if max_depth is None else min(MAX_SPECULAR, max_depth - 2)
-        for j in range(last + 1):                  # j specular vertices passed so far
-            if not d.shape[0]:
-                break
+        p, d, beta = aimed.sample(rng.random((m, 5)))
+        scale = np.maximum(beta.max(axis=1), 1e-300)       # roulette on beta relative to its start
+        o = p + aimed.normal * eps
+        i = 1                                              # the vertex the next rays reach
+        while d.shape[0] and i <= last:
             t, prim = tracer.closest_soa(np.ascontiguousarray(o.T), np.ascontiguousarray(d.T))
             rays += d.shape[0]
             hit = np.flatnonzero(prim >= 0)
-            o, d, beta, through, t, prim = o[hit], d[hit], beta[hit], through[hit], t[hit], prim[hit]
-            p = o + d * t[:, None]
-            ng = tracer.normals(prim, p)
+            d, beta, scale, t, prim = d[hit], beta[hit], scale[hit], t[hit], prim[hit]
+            p = o[hit] + d * t[:, None]
             mat = np.take(prim_mat, prim)
             spec = np.take(delta_mat, mat)
-            join = np.flatnonzero(~spec & through)
-            if join.size:
-                rays += _join_camera(ctx, image, p[join], ng[join], -d[join], mat[join], beta[join])
-            # only specular vertices go on (a first non-specular vertex: path tracing's)
-            if j == last:
+            if i == 1:
+                # a first non-specular vertex: path tracing's; only specular ones go on
+                go = np.flatnonzero(spec)
+                d, beta, scale, p, prim, mat = d[go], beta[go], scale[go], p[go], prim[go], mat[go]
+                ng = tracer.normals(prim, p)
+            else:
+                ng = tracer.normals(prim, p)
+                join = np.flatnonzero(~spec)
+                if join.size:
+                    rays += _join_camera(ctx, image, p[join], ng[join], -d[join], mat[join], beta[join])
+            if i == last or not d.shape[0]:
                 break
-            go = np.flatnonzero(spec)
-            o, d, beta, p, ng, mat = o[go], d[go], beta[go], p[go], ng[go], mat[go]
+            # scatter by BSDF sampling (weight f |cos| / pdf; the materials here are symmetric)
             wo = -d
-            nrm = _shading_normals(flips, mat, ng, wo)
-            fr = Frame(nrm)
+            fr = Frame(_shading_normals(flips, mat, ng, wo))
             wo_l = np.stack([_dot(wo, fr.s), _dot(wo, fr.n), _dot(wo, fr.t)], axis=-1)
-            ur = rng.random((go.size, 2))
-            wi_l = np.zeros((go.size, 3))
-            weight = np.zeros((go.size, 3))
+            ur = rng.random((d.shape[0], 2))
+            wi_l = np.zeros((d.shape[0], 3))
+            weight = np.zeros((d.shape[0], 3))
             for mi in np.unique(mat):
                 sel = np.flatnonzero(mat == mi)
-                wi_s, w_s, _, _ = scene.materials[mi]._sample(wo_l[sel], ur[sel])
+                wi_s, w_s, _, _ = materials[mi]._sample(wo_l[sel], ur[sel])
                 wi_l[sel], weight[sel] = wi_s, w_s
             wi = fr.s * wi_l[:, 0:1] + fr.n * wi_l[:, 1:2] + fr.t * wi_l[:, 2:3]
             beta = beta * weight
-            alive = np.flatnonzero(beta.max(axis=1) > 0.0)
+            bmax = beta.max(axis=1)
+            alive = bmax > 0.0
+            if roulette and i >= rr_start:
+                q = np.minimum(bmax / (scale * rr_threshold), 0.95)
+                survive = rng.random(d.shape[0]) < q
+                beta /= np.where(survive, q, 1.0)[:, None]
+                alive &= survive
+            alive = np.flatnonzero(alive)
             side = np.sign(_dot(wi, ng))
             o = (p + ng * (eps * side)[:, None])[alive]
-            d, beta = wi[alive], beta[alive]
-            through = np.ones(alive.size, dtype=bool)
+            d, beta, scale = wi[alive], beta[alive], scale[alive]
+            i += 1
     return image, rays
 
 
@@ -160,8 +271,9 @@ def _join_camera(ctx, image, p, ng, wo, mat, beta) -> int:
 def run_caustic_batch(job: BatchJob) -> BatchResult:
     """One batch of the caustic stage: ``W H spp`` light subpaths, splats summed per pixel."""
     w, h = job.res
-    total, rays = caustic_splats(job.scene, job.tracer, job.res, w * h * job.spp, job.rng,
-                                 job.settings.max_depth)
+    st = job.settings
+    total, rays = caustic_splats(job.scene, job.tracer, job.res, w * h * job.spp, job.rng, st.max_depth,
+                                 rr_depth=st.rr_depth, rr_threshold=st.rr_threshold)
     return BatchResult(total, None, int(rays))
 
 

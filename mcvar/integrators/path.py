@@ -245,10 +245,9 @@ def _trace_general(tr: Transport, o, d) -> None:
         if k + 1 > tr.limit or (last and not (tables.any_delta or tables.hidden_emitters)):
             break
         dirs = sample_directions(vertex, stream)
-        if tr.caustic_light:
-            # the caustic prefix: vertex 1 non-specular, every later one specular
-            spec = np.take(tables.all_delta, mat)
-            state.tag = ~spec if k == 1 else state.tag & spec
+        if tr.caustic_light and k == 1:
+            # vertex 1 non-specular: light arriving through a specular vertex is the light tracer's
+            state.tag = ~np.take(tables.all_delta, mat)
         state.beta[...] *= dirs.weight
         wi, pdf = dirs.wi, dirs.pdf
         del dirs                           # free the weights now (allocator reuse)

@@ -410,7 +410,8 @@ class Transport:
             if not lit.size:
                 return
         if self.caustic_light and k >= 3:
-            keep = ~np.take(state.tag, lit)           # E D S+ L: the light tracer's
+            # vertex 1 non-specular and the last bounce specular: the light tracer's
+            keep = ~(np.take(state.tag, lit) & np.isinf(np.take(state.prev_pdf, lit)))
             lit, cos_l = lit[keep], cos_l[keep]
             if not lit.size:
                 return
