@@ -452,21 +452,33 @@ def reference(case: Case, paths: int, libllvm: str | None, mitsuba_ok: bool):
 # ---------------------------------------------------------------------------
 # the suite
 
+def select_cases(spec: str | None) -> tuple:
+    """The cases ``--cases`` names (comma-separated scenes or ``scene-res``; None: :data:`CASES`)."""
+    if spec is None:
+        return CASES
+    tokens = [t.strip() for t in spec.split(",") if t.strip()]
+    bad = [t for t in tokens if not any(t in (c.scene, f"{c.scene}-{c.res}") for c in CASES)]
+    if bad or not tokens:
+        raise SystemExit(f"--cases: unknown case(s) {', '.join(bad) or repr(spec)}; the suite has "
+                         f"{', '.join(f'{c.scene}-{c.res}' for c in CASES)}")
+    return tuple(c for c in CASES if any(t in (c.scene, f"{c.scene}-{c.res}") for t in tokens))
+
+
 def _load() -> str:
     a, b, c = os.getloadavg()
     return f"{a:.2f} {b:.2f} {c:.2f}"
 
 
 def run_suite(args, libllvm, mitsuba_ok) -> list[dict]:
-    refs = {c: reference(c, args.ref_paths, libllvm, mitsuba_ok) for c in CASES}
+    refs = {c: reference(c, args.ref_paths, libllvm, mitsuba_ok) for c in args.cases}
     rows = {(c, e): {"seconds": [], "errors": [], "images": [], "spp": []}
-            for c in CASES for e in list(MCVAR) + ([f"Mitsuba {s}" for s in MITSUBA_SAMPLERS] if mitsuba_ok else [])}
+            for c in args.cases for e in list(MCVAR) + ([f"Mitsuba {s}" for s in MITSUBA_SAMPLERS] if mitsuba_ok else [])}
     loads = [os.getloadavg()[0]]
     print(f"suite: {args.rounds} rounds x {args.seeds} seeds, load average {_load()} on {os.cpu_count()} CPUs",
           flush=True)
     for rnd in range(args.rounds):
         seeds = ",".join(str(1000 + rnd * args.seeds + s) for s in range(args.seeds))
-        for i, case in enumerate(CASES):
+        for i, case in enumerate(args.cases):
             engines = ["mcvar", "mitsuba"] if mitsuba_ok else ["mcvar"]
             if (rnd + i) % 2:                              # alternate which engine goes first
                 engines.reverse()
@@ -652,12 +664,16 @@ def main(argv=None) -> int:
     ap.add_argument("--no-suite", action="store_true", help="only the triangle-count series")
     ap.add_argument("--triangle-rounds", type=int, default=3)
     ap.add_argument("--libllvm", default=None, help="a libLLVM >= 16 for Mitsuba's LLVM variant")
+    ap.add_argument("--cases", default=None,
+                    help="the suite's cases to run, comma-separated: a scene (cornell-spheres: its case; "
+                         "cornell: the three) or scene-res (cornell-128); default all four")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--plot", type=Path, default=None,
                     help=f"where the triangle-count plot goes (default {PLOT.relative_to(ROOT)}; with --quick, "
                          "OUT/triangles.png, so that a smoke run does not overwrite the docs' figure)")
     args = ap.parse_args(argv)
     args.triangle_ks, args.triangle_res, args.triangle_spp = TRIANGLE_KS, TRIANGLE_RES, TRIANGLE_SPP
+    args.cases = select_cases(args.cases)
     if args.quick:
         args.rounds, args.seeds, args.triangle_rounds = 1, 3, 1
         args.ref_paths = min(args.ref_paths, 2 ** 24)
@@ -704,7 +720,7 @@ def main(argv=None) -> int:
     print(f"\nwrote {args.out}/suite.csv, suite.md{', triangles.csv' if not args.no_triangles else ''}; "
           f"{time.perf_counter() - t_start:.0f} s in all; load average now {_load()}")
     if ratios:
-        for case, r in zip((c.name for c in CASES), ratios):
+        for case, r in zip((c.name for c in args.cases), ratios):
             print(f"ratio (Mitsuba best / mcvar default MSE x time), {case}: {r:.2f}")
         print(f"geometric mean of the ratios over {len(ratios)} cases: {geometric_mean(ratios):.2f}")
     elif not args.no_suite:

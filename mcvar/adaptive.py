@@ -38,9 +38,11 @@ ADAPTIVE_RR_THRESHOLD = 0.2
 #: The path settings of adaptive renders (and ``mcvar render``'s default), for
 #: the methods that take them (the path methods). ``caustics='light'``: caustic
 #: paths by light tracing where the scene allows it (:mod:`mcvar.integrators.caustics`;
-#: on ``cornell-spheres`` MSE 2.33e-4 -> 1.36e-4 for +10% CPU time).
+#: on ``cornell-spheres`` MSE 1.28e-4 -> 5.0e-5 at the same time); ``glass_splits=1``:
+#: a camera ray that meets glass follows both lobes (MSE 4.8e-5 -> 3.3e-5 for +8%
+#: CPU time; docs/performance.md).
 ADAPTIVE_SETTINGS = {"rr_depth": ADAPTIVE_RR_DEPTH, "visible_lights": "exact",
-                     "rr_threshold": ADAPTIVE_RR_THRESHOLD, "caustics": "light"}
+                     "rr_threshold": ADAPTIVE_RR_THRESHOLD, "caustics": "light", "glass_splits": 1}
 
 #: The fields of :class:`~mcvar.integrators.allocation.Adaptive` render_adaptive takes as keywords.
 _ALLOCATION_KEYS = ("pilot_spp", "min_spp", "max_spp", "exponent")

@@ -103,3 +103,103 @@ def test_caustics_by_light_tracing_agree_with_path_tracing_with_a_mirror_wall():
         sb = np.sqrt(b.variance[rows, cols].sum(axis=(0, 1)) / b.spp) / k
         ma, mb = ia.mean(axis=(0, 1)), ib.mean(axis=(0, 1))
         assert np.all(np.abs(ma - mb) < z * np.hypot(sa, sb)), (rows, ma, mb, sa, sb)
+
+
+# -- glass_splits: both lobes of glass on camera paths -------------------------
+
+def _glass_pixels(scene, res):
+    tracer = Tracer(scene)
+    d = scene.camera.ray_directions_soa((res, res), np.arange(res * res), np.full((res * res, 2), 0.5))
+    o = np.broadcast_to(scene.camera.position[:, None], d.shape)
+    _, prim = tracer.closest_soa(np.ascontiguousarray(o), np.ascontiguousarray(d))
+    glass = [i for i, m in enumerate(scene.materials) if type(m) is Glass]
+    mat = np.where(prim >= 0, np.asarray(scene.prim_material)[np.maximum(prim, 0)], -1)
+    return np.isin(mat, glass).reshape(res, res)
+
+
+@pytest.mark.parametrize("splits,max_depth", [(1, 3), (3, 3), (1, None), (3, None)])
+def test_glass_splits_keep_the_image(splits, max_depth):
+    # splitting replaces the Fresnel choice by both lobes with weights F and 1 - F: the same
+    # expectation. Per channel over the image and over the pixels that see the glass sphere,
+    # within 5 combined standard errors (Sidak over 4 x 3 x 2 tests); at max_depth 3 (the
+    # light seen in and through the sphere, E S L and E S S L, without the heavy tails of
+    # the caustics seen through it) the glass pixels' variance falls several times: the
+    # variance of the choice is what splitting removes
+    from mcvar.integrators import render
+
+    scene = load_scene("cornell-spheres")
+    res = 16
+    kw = dict(spp=512, res=res, sampler="random", caustics="light", max_depth=max_depth)
+    a = render(scene, rng=41, glass_splits=0, **kw)
+    b = render(scene, rng=42, glass_splits=splits, **kw)
+    keep = _glass_pixels(scene, res)
+    assert keep.sum() >= 6
+    z = norm.isf(0.5 * sidak_significance(2 * norm.sf(5.0), 24))
+    for sel in (np.ones_like(keep), keep):
+        k = sel.sum()
+        ma, mb = a.image[sel].mean(axis=0), b.image[sel].mean(axis=0)
+        sa = np.sqrt(a.variance[sel].sum(axis=0) / a.spp) / k
+        sb = np.sqrt(b.variance[sel].sum(axis=0) / b.spp) / k
+        assert np.all(np.abs(ma - mb) < z * np.hypot(sa, sb)), (k, ma, mb, sa, sb)
+    if max_depth is not None:
+        assert b.variance[keep].sum() < 0.25 * a.variance[keep].sum()
+
+
+def test_glass_splits_change_nothing_without_glass():
+    # the Cornell box and the mirror-only room: the same paths, the same image
+    from mcvar.integrators import render
+
+    kw = dict(spp=16, res=16, sampler="sobol", rng=3, kernel="general")
+    for scene in (load_scene("cornell"), Scene(name="mirror-room", description="a mirror sphere",
+                                               **_cornell_common(blocks=False, extra_spheres=(
+                                                   ((278.0, 100.0, 279.0), 100.0, "mirror", Mirror()),)))):
+        a, b = render(scene, glass_splits=0, **kw), render(scene, glass_splits=2, **kw)
+        np.testing.assert_array_equal(a.image, b.image)
+        assert a.rays == b.rays
+
+
+def test_glass_splits_are_checked():
+    from mcvar.integrators.settings import PathSettings
+
+    assert PathSettings(glass_splits=0).glass_splits == 0
+    for bad in (-1, 1.5, True, "1"):
+        with pytest.raises((ValueError, TypeError), match="glass_splits"):
+            PathSettings(glass_splits=bad)
+
+
+def test_a_split_path_is_the_weighted_sum_of_its_two_choices():
+    # An identity, path by path: with a constant Fresnel term (F = 0.3) and a fixed depth (no
+    # roulette, whose survival depends on the throughput), a camera path split at its first
+    # vertex, when that vertex is glass, carries F x (the path that reflected there) + (1 - F)
+    # x (the path that refracted), each traced unsplit with vertex 1's lobe forced (its
+    # BSDF column 0 set to 0 or to 1 - 1e-9) and every other number the same; a path whose
+    # first vertex is not glass is traced exactly as without splitting.
+    from mcvar.integrators import stream_dim, trace_camera_paths
+    from mcvar.integrators.stream import BSDF, CAMERA_DIMS
+
+    kw = _cornell_common(blocks=False, extra_spheres=(((278.0, 150.0, 250.0), 150.0, "glass",
+                                                       Glass(1.5, fresnel=0.3)),))
+    scene = Scene(name="glass-03", description="a glass sphere of constant F = 0.3", **kw)
+    res, n, depth = (8, 8), 4000, 6
+    rng = np.random.default_rng(2_718_281)
+    pixel = rng.integers(0, res[0] * res[1], n)
+    u = rng.random((n, stream_dim(depth)))
+    tracer = Tracer(scene, dtype="float64")
+    col = CAMERA_DIMS + BSDF                              # vertex 1's lobe choice
+
+    def trace(v, splits):
+        return trace_camera_paths(scene, res, pixel, v, rng=0, tracer=tracer, max_depth=depth,
+                                  glass_splits=splits, kernel="general")[0]
+
+    split = trace(u, 1)
+    plain = trace(u, 0)
+    u_r, u_t = u.copy(), u.copy()
+    u_r[:, col], u_t[:, col] = 0.0, 1.0 - 1e-9
+    forced = 0.3 * trace(u_r, 0) + 0.7 * trace(u_t, 0)
+    d = scene.camera.ray_directions_soa(res, pixel, u[:, :CAMERA_DIMS])
+    o = np.broadcast_to(scene.camera.position[:, None], d.shape)
+    _, prim = tracer.closest_soa(np.ascontiguousarray(o), np.ascontiguousarray(d))
+    glass = prim == scene.n_triangles
+    assert 0.1 < glass.mean() < 0.9 and np.any(forced[glass] > 0)
+    np.testing.assert_allclose(split[glass], forced[glass], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(split[~glass], plain[~glass])

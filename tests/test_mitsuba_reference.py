@@ -421,11 +421,13 @@ def test_fixed_depth_chain_agrees_with_mitsuba(method, recipe, depth):
 def test_caustics_by_light_tracing_agree_with_mitsuba(recipe, plan):
     # mcvar render's default partition (caustics='light', mcvar.integrators.caustics): path
     # tracing leaves every path whose light arrives through a specular vertex after a
-    # non-specular first vertex to light subpaths aimed at the specular spheres; the sum
-    # against Mitsuba's path. On cornell-caustic path tracing alone is heavy-tailed (above)
+    # non-specular first vertex to light subpaths aimed at the specular spheres; and camera
+    # rays that meet glass follow both lobes (glass_splits=1); the sum against Mitsuba's
+    # path. On cornell-caustic path tracing alone is heavy-tailed (above)
     spp, reps = plan
-    images = mcvar_replicates(recipe, "path", spp, reps, caustics="light")
-    assert_agrees(images, recipe, f"path, caustics='light' ({reps} x {spp} spp) on {recipe}", region_of(recipe))
+    images = mcvar_replicates(recipe, "path", spp, reps, caustics="light", glass_splits=1)
+    assert_agrees(images, recipe, f"path, caustics='light', glass_splits=1 ({reps} x {spp} spp) on {recipe}",
+                  region_of(recipe))
 
 
 # ---------------------------------------------------------------------------

@@ -54,7 +54,7 @@ __all__ = ["CAUSTICS", "AimedOrigins", "light_caustics_apply", "caustic_splats",
 #: Values of the ``caustics`` setting: ``path`` (path tracing finds them) or ``light``.
 CAUSTICS = ("path", "light")
 #: Light subpaths per camera path of the render (``caustics='light'``).
-CAUSTIC_PATH_FRACTION = 0.25
+CAUSTIC_PATH_FRACTION = 0.04
 #: Light subpaths per chunk.
 _CHUNK = 1 << 16
 

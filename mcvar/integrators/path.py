@@ -248,6 +248,7 @@ def _trace_general(tr: Transport, o, d) -> None:
         if tr.caustic_light and k == 1:
             # vertex 1 non-specular: light arriving through a specular vertex is the light tracer's
             state.tag = ~np.take(tables.all_delta, mat)
+        branch = _split_glass(tr, state, vertex, dirs, mat) if k <= tr.splits else None
         state.beta[...] *= dirs.weight
         wi, pdf = dirs.wi, dirs.pdf
         del dirs                           # free the weights now (allocator reuse)
@@ -259,8 +260,68 @@ def _trace_general(tr: Transport, o, d) -> None:
         state.o[...] += p
         state.d[...] = wi
         state.prev_pdf[...] = pdf
+        if branch is not None:
+            rb, wi_b, beta_b = branch
+            ngb = np.take(ng, rb, axis=1)
+            side = np.sign(dot(wi_b, ngb))
+            side *= tr.eps
+            ngb *= side
+            ngb += np.take(p, rb, axis=1)
+            state.append(rb, ngb, wi_b, beta_b)
+            alive = np.concatenate([alive, beta_b.max(axis=0) > 0.0])
+            tr.duplicates = True
         if not alive.all():
             state.take(np.flatnonzero(alive))
+
+
+def _split_glass(tr: Transport, state: PathState, vertex: Vertex, dirs, mat):
+    """Both lobes of Glass at vertex ``k`` of the camera paths whose vertices so far
+    are all Glass (:attr:`~mcvar.integrators.settings.PathSettings.glass_splits`).
+
+    The sampled direction of those rows is replaced by the lobe ``u0 = 0``
+    chooses (reflection where ``F > 0``) with weight ``tint x P(lobe)``; where
+    the other lobe has probability > 0 (``0 < F < 1``: not under total
+    internal reflection) it is returned as a new branch ``(rows, wi (3, b),
+    beta (3, b))`` with ``beta`` the throughput so far times ``tint x (1 - F)``.
+    The sum of the branches has the expectation of the choice (its two terms).
+    """
+    tables = tr.tables
+    on = np.take(tables.glass, mat)
+    state.prefix = on if state.prefix is None else state.prefix & on
+    rows = np.flatnonzero(state.prefix)
+    if not rows.size:
+        return None
+    out_rows, out_wi, out_w = [], [], []
+    mats = np.take(mat, rows)
+    for mi in np.unique(mats):
+        r = rows[mats == mi]
+        material = tables.materials[mi]
+        wo = unit64(np.take(vertex.wo_local, r, axis=1))
+        wi_a, w_a, p_a, _ = material._sample(wo, np.zeros((r.size, 2)))
+        wi_b, w_b, p_b, _ = material._sample(wo, np.ones((r.size, 2)))
+        frame = tuple(np.take(f, r, axis=1) for f in vertex.frame)
+        dirs.wi[:, r] = _to_world(frame, wi_a.T.astype(dirs.wi.dtype))
+        dirs.weight[:, r] = (w_a * p_a[:, None]).T
+        dirs.pdf[r] = np.inf
+        two = np.flatnonzero(p_a < 1.0)           # 0 < F < 1: the other lobe exists
+        if two.size:
+            out_rows.append(r[two])
+            out_wi.append(_to_world(tuple(f[:, two] for f in frame), wi_b[two].T.astype(dirs.wi.dtype)))
+            out_w.append((w_b[two] * p_b[two, None]).T)
+    if not out_rows:
+        return None
+    rb = np.concatenate(out_rows)
+    beta_b = np.take(state.beta, rb, axis=1) * np.concatenate(out_w, axis=1)
+    return rb, np.concatenate(out_wi, axis=1), beta_b
+
+
+def _to_world(frame, v):
+    """Local SoA directions ``v`` (3, m) to world: ``s x + n y + t z``."""
+    fs, fn, ft = frame
+    w = fs * v[0]
+    w += fn * v[1]
+    w += ft * v[2]
+    return w
 
 
 def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) -> None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bsdf import Lambertian
+from ..bsdf import Glass, Lambertian
 from ..geometry import Frame
 from .emitters import Emitters, VisibleLights
 from .settings import HEURISTICS, PathSettings, Strategies
@@ -59,7 +59,7 @@ class PathState:
         kernel keeps everything in float32 (radiance is accumulated in float64).
     """
 
-    __slots__ = ("geo", "weights", "idx", "tag")
+    __slots__ = ("geo", "weights", "idx", "tag", "prefix")
 
     def __init__(self, origins, directions, dtype=np.float64, weight_dtype=None):
         n = np.shape(origins)[1]
@@ -70,8 +70,10 @@ class PathState:
         self.weights[0:3] = 1.0
         self.weights[3] = np.inf
         self.idx = np.arange(n)
-        #: optional per-path flags kept through compaction (the caustic prefix)
+        #: optional per-path flags kept through compaction: the caustic prefix
+        #: (vertex 1 non-specular), and every vertex so far glass (``glass_splits``)
         self.tag = None
+        self.prefix = None
 
     @property
     def n(self) -> int:
@@ -100,6 +102,26 @@ class PathState:
         self.idx = np.take(self.idx, rows)
         if self.tag is not None:
             self.tag = np.take(self.tag, rows)
+        if self.prefix is not None:
+            self.prefix = np.take(self.prefix, rows)
+
+    def append(self, rows, origins, directions, beta) -> None:
+        """Add a branch of the paths at positions ``rows``: new rays ``origins``,
+        ``directions`` (3, b) with throughput ``beta`` (3, b) after a delta lobe
+        (pdf inf), the same output rows and flags (a split, ``glass_splits``)."""
+        geo = np.empty((6, rows.size), dtype=self.geo.dtype)
+        geo[0:3] = origins
+        geo[3:6] = directions
+        w = np.empty((4, rows.size), dtype=self.weights.dtype)
+        w[0:3] = beta
+        w[3] = np.inf
+        self.geo = np.concatenate([self.geo, geo], axis=1)
+        self.weights = np.concatenate([self.weights, w], axis=1)
+        self.idx = np.concatenate([self.idx, np.take(self.idx, rows)])
+        if self.tag is not None:
+            self.tag = np.concatenate([self.tag, np.take(self.tag, rows)])
+        if self.prefix is not None:
+            self.prefix = np.concatenate([self.prefix, np.take(self.prefix, rows)])
 
 
 def _flips(material) -> bool:
@@ -143,6 +165,8 @@ class SceneTables:
         self.all_delta = np.array([bool(getattr(m, "is_delta", False)) for m in scene.materials])
         #: some emitting primitive is not a light NEE samples (the furnace, the checkerboard)
         self.hidden_emitters = bool(np.any(self.emits[:-1] & (scene.prim_light < 0)))
+        #: per material code (and a last entry for a miss): the material is Glass (``glass_splits``)
+        self.glass = np.array([type(m) is Glass for m in scene.materials] + [False])
         #: some material has a delta lobe (Mirror, Glass, smooth Plastic ...)
         self.any_delta = any(bool(getattr(m, "is_delta", False) or getattr(m, "has_delta", False))
                              for m in scene.materials)
@@ -326,6 +350,10 @@ class Transport:
         self.eps = float(scene.ray_epsilon)
         self.radiance = np.zeros((3, n))
         self.rays = 0
+        #: camera-path vertices whose Glass takes both lobes (:attr:`PathSettings.glass_splits`)
+        self.splits = settings.glass_splits if tables.glass.any() else 0
+        #: a path was split: several rows of the state add to one output row
+        self.duplicates = False
         #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
         #: by camera rays is left to the caller's exact image (None: sampled)
         self.visible = VisibleLights(scene) if settings.visible_lights == "exact" else None
@@ -335,10 +363,14 @@ class Transport:
                               and self.limit >= 3)
 
     def add(self, rows, value) -> None:
-        """``radiance[:, rows] += value`` for distinct ``rows``, one channel at a
-        time (1-D fancy indexing is several times faster than 2-D)."""
+        """``radiance[:, rows] += value``, one channel at a time (1-D fancy indexing
+        is several times faster than 2-D); ``rows`` repeat once a path was split
+        (:attr:`duplicates`: unbuffered ``np.add.at``)."""
         for c in range(3):
-            self.radiance[c, rows] += value[c]
+            if self.duplicates:
+                np.add.at(self.radiance[c], rows, value[c])
+            else:
+                self.radiance[c, rows] += value[c]
 
     def emission_weight(self, k, prev_pdf, light_pdf):
         """MIS weight of emission found by the ray of segment ``k`` (BSDF sampling).
