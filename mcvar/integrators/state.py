@@ -357,7 +357,7 @@ class Transport:
         #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
         #: by camera rays is left to the caller's exact image (None: sampled)
         self.visible = VisibleLights(scene) if settings.visible_lights == "exact" else None
-        #: caustic paths ``E D S+ L`` are light tracing's (:mod:`~mcvar.integrators.caustics`):
+        #: caustic paths ``E D (D|S)* S L`` are light tracing's (:mod:`~mcvar.integrators.caustics`):
         #: their emission is left out here
         self.caustic_light = (settings.caustics == "light" and tables.light_caustics and self.bsdf_hits
                               and self.limit >= 3)
