@@ -73,7 +73,8 @@ def _cmd_render(args) -> int:
         raise ValueError(f"--out must name an image file (.npy, .png, .exr, .hdr); {str(out)!r} is a directory")
     # estimator options of the path methods, only when asked for (other methods do not take them)
     tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
-                                ("rr_depth", args.rr_depth), ("caustics", args.caustics)) if v is not None}
+                                ("rr_depth", args.rr_depth), ("caustics", args.caustics),
+                                ("glass_splits", args.glass_splits)) if v is not None}
     common = dict(method=method.name, spp=args.spp, res=args.res, sampler=args.sampler, rng=args.seed,
                   max_depth=args.max_depth, heuristic=args.heuristic, progress=not args.quiet)
     if _adaptive_default(args, method):
@@ -345,9 +346,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "differences (a control variate; default for adaptive renders) or plain sampling "
                         "(default with --uniform)")
     p.add_argument("--caustics", choices=("light", "path"), default=None,
-                   help="caustic paths (diffuse, then specular to the light): left to light tracing where the "
-                        "scene allows it (default for adaptive renders) or found by path tracing (default with "
-                        "--uniform)")
+                   help="caustic paths (a diffuse first vertex, the light reached through a specular one): left "
+                        "to light tracing where the scene allows it (default for adaptive renders) or found by "
+                        "path tracing (default with --uniform)")
+    p.add_argument("--glass-splits", type=int, default=None,
+                   help="camera rays follow both lobes of glass at their first N glass vertices (default: 1 for "
+                        "adaptive renders, 0 with --uniform)")
     p.add_argument("--rr-threshold", type=float, default=None,
                    help="Russian roulette survival max(beta) / THRESHOLD, in (0, 1] (default: 0.2 for "
                         "adaptive renders, a weight window; 1, pbrt's rule, with --uniform)")

@@ -81,6 +81,21 @@ def test_render_method_flag_its_alias_and_the_registry_in_the_help(tmp_path, cap
     assert all(name in help_text.replace("\n", " ").replace("  ", " ") for name in METHODS)
 
 
+def test_render_glass_splits_flag(tmp_path, capsys):
+    """``--glass-splits N`` reaches the path settings: the adaptive default splits (1), 0
+    gives another image of the same seed, and a negative count is refused naming it."""
+    import numpy as np
+
+    base = ["render", "cornell-spheres", "--res", "8", "--spp", "16", "--quiet", "--seed", "3", "--workers", "1"]
+    a, b, c = tmp_path / "a.npy", tmp_path / "b.npy", tmp_path / "c.npy"
+    assert main(base + ["--out", str(a)]) == 0
+    assert main(base + ["--glass-splits", "1", "--out", str(b)]) == 0
+    assert main(base + ["--glass-splits", "0", "--out", str(c)]) == 0
+    assert np.array_equal(np.load(a), np.load(b)) and not np.array_equal(np.load(a), np.load(c))
+    assert main(base + ["--glass-splits", "-1", "--out", str(c)]) == 2
+    assert "glass_splits" in capsys.readouterr().err
+
+
 def test_adaptive_workers_follow_the_cpus_this_process_may_use(monkeypatch):
     """``mcvar render``'s default split: two workers when the process may run on two
     CPUs or more (the affinity mask, not the machine's count), one when pinned to one;
