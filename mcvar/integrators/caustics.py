@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..bsdf import Lambertian
 from ..geometry import Frame
 from ..warps import _square_to_cosine_hemisphere_unchecked
 from .film import BatchJob, BatchResult, splat
@@ -191,6 +192,8 @@ def caustic_splats(scene, tracer, res, n_paths: int, rng, max_depth: int | None 
     image = np.zeros((w * h, 3))
     aimed = AimedOrigins(scene)
     ctx = _Context(scene, tracer, None, res)
+    ctx.lambertian_f = np.array([m.albedo / np.pi if type(m) is Lambertian else np.full(3, np.nan)
+                                 for m in scene.materials])
     eps, flips, delta_mat = ctx.eps, ctx.flips, ctx.delta_mat
     prim_mat = np.asarray(scene.prim_material)
     materials = scene.materials
@@ -258,8 +261,16 @@ def _join_camera(ctx, image, p, ng, wo, mat, beta) -> int:
     for ``s >= 2``, weight 1). Returns the shadow rays traced."""
     scene, tracer, cam, res, eps = ctx.scene, ctx.tracer, ctx.scene.camera, ctx.res, ctx.eps
     wi, dist, we, pdf, xy, visible = cam.sample_Wi(p, res)
-    cos_q = np.abs(_dot(ng, wi))
-    f, _, _ = _bsdf_eval(scene, ctx.flips, mat, ng, wo, wi, need_pdf=False)
+    c_i = _dot(ng, wi)
+    cos_q = np.abs(c_i)
+    lamb_f = ctx.lambertian_f[mat]                       # albedo / pi, NaN on other materials
+    if not np.isnan(lamb_f[:, 0]).any():
+        # Lambertian vertices written out: f = albedo / pi where wo and wi lie on one side
+        # (the two-sided normal flipped towards wo), as Lambertian.eval in that frame
+        c_o = _dot(ng, wo)
+        f = lamb_f * (((c_o > 0.0) & (c_i > 0.0)) | ((c_o < 0.0) & (c_i < 0.0)))[:, None]
+    else:
+        f, _, _ = _bsdf_eval(scene, ctx.flips, mat, ng, wo, wi, need_pdf=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         value = beta * f * np.where(visible, cos_q * we / pdf, 0.0)[:, None]
     go = np.flatnonzero(value.max(axis=1) > 0.0)
