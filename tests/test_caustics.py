@@ -203,3 +203,30 @@ def test_a_split_path_is_the_weighted_sum_of_its_two_choices():
     assert 0.1 < glass.mean() < 0.9 and np.any(forced[glass] > 0)
     np.testing.assert_allclose(split[glass], forced[glass], rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(split[~glass], plain[~glass])
+
+
+def test_joins_at_lambertian_vertices_written_out_equal_the_bsdf_evaluation():
+    # the caustic stage's written-out f at Lambertian vertices against the light tracer's
+    # generic evaluation (frames flipped towards wo, Lambertian.eval), on random normals and
+    # directions on both sides; None as soon as a material is not Lambertian
+    from mcvar.integrators.caustics import _lambertian_f
+    from mcvar.integrators.light import _bsdf_eval, _flips
+
+    scene = load_scene("cornell-spheres")
+    rng = np.random.default_rng(31_415)
+    n = 5000
+
+    def unit(v):
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    ng, wo, wi = (unit(rng.normal(size=(n, 3))) for _ in range(3))
+    lamb = [i for i, m in enumerate(scene.materials) if type(m).__name__ == "Lambertian"]
+    table = np.array([m.albedo / np.pi if i in lamb else np.full(3, np.nan) for i, m in enumerate(scene.materials)])
+    mat = rng.choice(lamb, n)
+    got = _lambertian_f(table, mat, ng, wo, np.einsum("ij,ij->i", ng, wi))
+    want, _, _ = _bsdf_eval(scene, _flips(scene), mat, ng, wo, wi, need_pdf=False)
+    assert np.any(got > 0) and np.any(got == 0)
+    np.testing.assert_array_equal(got, want)
+    other = next(i for i in range(len(scene.materials)) if i not in lamb)
+    assert _lambertian_f(table, np.append(mat, other), np.vstack([ng, ng[:1]]), np.vstack([wo, wo[:1]]),
+                         np.zeros(n + 1)) is None

@@ -263,13 +263,8 @@ def _join_camera(ctx, image, p, ng, wo, mat, beta) -> int:
     wi, dist, we, pdf, xy, visible = cam.sample_Wi(p, res)
     c_i = _dot(ng, wi)
     cos_q = np.abs(c_i)
-    lamb_f = ctx.lambertian_f[mat]                       # albedo / pi, NaN on other materials
-    if not np.isnan(lamb_f[:, 0]).any():
-        # Lambertian vertices written out: f = albedo / pi where wo and wi lie on one side
-        # (the two-sided normal flipped towards wo), as Lambertian.eval in that frame
-        c_o = _dot(ng, wo)
-        f = lamb_f * (((c_o > 0.0) & (c_i > 0.0)) | ((c_o < 0.0) & (c_i < 0.0)))[:, None]
-    else:
+    f = _lambertian_f(ctx.lambertian_f, mat, ng, wo, c_i)
+    if f is None:
         f, _, _ = _bsdf_eval(scene, ctx.flips, mat, ng, wo, wi, need_pdf=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         value = beta * f * np.where(visible, cos_q * we / pdf, 0.0)[:, None]
@@ -281,6 +276,20 @@ def _join_camera(ctx, image, p, ng, wo, mat, beta) -> int:
     go = go[ok]
     splat(image, cam.pixel_index(xy[go], res), value[go])
     return int(ok.size)
+
+
+def _lambertian_f(table, mat, ng, wo, c_i):
+    """``f(wo, wi)`` of vertices whose materials are all Lambertian, written out:
+    ``albedo / pi`` where ``wo`` and ``wi`` lie on one side of the surface
+    (``c_i = ng . wi``; the two-sided normal flipped towards ``wo``, as
+    :func:`mcvar.integrators.light._bsdf_eval` and ``Lambertian.eval`` do),
+    else 0; None when some material is not Lambertian (``table``: albedo / pi
+    per material, NaN for the others)."""
+    f = table[mat]
+    if np.isnan(f[:, 0]).any():
+        return None
+    c_o = _dot(ng, wo)
+    return f * (((c_o > 0.0) & (c_i > 0.0)) | ((c_o < 0.0) & (c_i < 0.0)))[:, None]
 
 
 def run_caustic_batch(job: BatchJob) -> BatchResult:
