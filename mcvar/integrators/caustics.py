@@ -54,7 +54,8 @@ from .light import RR_MAX_VERTICES, _Context, _bsdf_eval, _shading_normals, _uno
 from .registry import Method
 from .state import RR_START_DEPTH, light_caustics_apply
 
-__all__ = ["CAUSTICS", "AimedOrigins", "light_caustics_apply", "caustic_splats", "CAUSTIC_METHOD", "CAUSTIC_PATH_FRACTION"]
+__all__ = ["CAUSTICS", "AimedOrigins", "light_caustics_apply", "caustic_splats", "CAUSTIC_METHOD",
+           "CAUSTIC_PATH_FRACTION"]
 
 #: Values of the ``caustics`` setting: ``path`` (path tracing finds them) or ``light``.
 CAUSTICS = ("path", "light")
@@ -150,7 +151,8 @@ class AimedOrigins:
             sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
             phi = 2.0 * np.pi * u[ia, 4]
             fr = Frame(ax)
-            w[ia] = fr.s * (sin_t * np.cos(phi))[:, None] + fr.n * cos_t[:, None] + fr.t * (sin_t * np.sin(phi))[:, None]
+            w[ia] = (fr.s * (sin_t * np.cos(phi))[:, None] + fr.n * cos_t[:, None]
+                     + fr.t * (sin_t * np.sin(phi))[:, None])
             own = np.zeros((len(self.radii), m), dtype=bool)
             own[j, ia] = True
             dens = share / omega
