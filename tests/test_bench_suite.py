@@ -161,3 +161,13 @@ def test_cached_reference_prefers_an_independent_renderer_then_the_most_paths(su
     (tmp_path / f"bench-suite-ref-cornell-4-4096x32-llvm_ad_rgb-v{EXPORTER_VERSION}.npz").unlink()
     mean, _, dof, what = suite.reference(case, 16 * 2048, None, True)
     assert mean[0, 0, 0] == 3.0 and dof == 15 and "16 x 256 spp" in what
+
+
+def test_cases_are_chosen_by_scene_or_scene_and_size(suite):
+    assert suite.select_cases(None) == suite.CASES
+    assert [c.name for c in suite.select_cases("cornell-spheres")] == ["cornell-spheres 64x64, 256 spp"]
+    assert len(suite.select_cases("cornell")) == 3
+    assert [c.res for c in suite.select_cases("cornell-128, cornell-spheres")] == [128, 64]
+    for bad in ("cornel", "cornell-32", ","):
+        with pytest.raises(SystemExit, match="--cases"):
+            suite.select_cases(bad)
