@@ -151,7 +151,8 @@ class Tracer:
 
     def __getstate__(self):
         """Pickled without the shading tables cached on it (``SceneTables.of``):
-        a tracer crosses to a worker inside every batch, and the tables, several
+        a tracer crosses to every worker process (once per process for a render's
+        own pool, inside every batch for other executors), and the tables, several
         MB at 100k triangles, are rebuilt once in the process that reads them."""
         state = dict(self.__dict__)
         state.pop("_scene_tables", None)
