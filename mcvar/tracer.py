@@ -205,6 +205,7 @@ class Tracer:
             # no per-group blocks and no shadow table (its size grows with T^2)
             self._bvh = _bvh.build_bvh(tri, dtype=self.dtype)
             self._cand = None
+            self._shadow_keep = self._build_class_table()
             # the per-triangle maps serve only the groups' blocks: not kept (nor
             # pickled into every batch: 14.7 MB of a 40 MB tracer at 87k triangles)
             del self._inv, self._inv_o, self._offset
@@ -274,6 +275,76 @@ class Tracer:
                     cand[rows] = ~apart
         self._cand = cand
 
+    def _build_class_table(self):
+        """The BVH's shadow-ray table: ``keep[key]``, the plane classes
+        (:attr:`mcvar.bvh.BVH.tri_class`, as bits) that may occlude a shadow ray of this key.
+
+        Keys ``(light * CLASSES + class) * 3 + side + 1``, ``class`` the shading
+        triangle's; the last row (every bit) serves rays without a key. The
+        rule of :meth:`_build_shadow_table`, for classes instead of triangles
+        (its memory ``3 L CLASSES`` words, whatever the scene's size): class
+        ``c`` (its triangles within ``w_c`` of one plane, ``w_c`` measured) is
+        skipped for a key when every triangle of the shading class, moved off
+        its surface by ``side * ray_epsilon``, lies on or beyond ``w_c - touch``
+        on one side of the plane and the light, moved alike, beyond ``w_c +
+        margin`` on the same side: the segment then meets the slab holding
+        ``c``'s triangles only within ``ray_epsilon`` of its start. The last
+        class (the scene's smaller planes) is never skipped and keys none.
+        """
+        scene, bvh = self.scene, self._bvh
+        n_light, n_cls = scene.n_lights, _bvh.CLASSES
+        keep = np.full(n_light * n_cls * 3 + 1, np.iinfo(np.uint64).max, dtype=np.uint64)
+        cls = bvh.tri_class.astype(np.int64)
+        real = np.flatnonzero(np.bincount(cls, minlength=n_cls)[:n_cls - 1])
+        if not n_light or not real.size:
+            return keep
+        tri, nrm = scene.triangles, self.triangle_normal
+        scale = max(1.0, float(np.abs(tri).max()))
+        margin = max(0.25 * self.epsilon, 4e-6 * scale)
+        touch = 1e-9 * scale
+        # every real class's plane: the area-weighted normal, the mean offset, the slab's half width
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        plane = np.zeros((n_cls, 3))
+        np.add.at(plane, cls, nrm * area[:, None])
+        plane /= np.maximum(np.linalg.norm(plane, axis=1, keepdims=True), 1e-300)
+        h = np.einsum("tvk,tk->tv", tri, plane[cls])                       # (T, 3)
+        off = np.bincount(cls, weights=h.sum(axis=1), minlength=n_cls) / np.maximum(
+            3 * np.bincount(cls, minlength=n_cls), 1)
+        width = np.zeros(n_cls)
+        np.maximum.at(width, cls, np.abs(h - off[cls, None]).max(axis=1))
+        planes, off, width = plane[real], off[real], width[real]           # (C, 3), (C,), (C,)
+        corners = np.stack([scene.light_origin, scene.light_origin + scene.light_edge1,
+                            scene.light_origin + scene.light_edge1 + scene.light_edge2,
+                            scene.light_origin + scene.light_edge2], axis=1)      # (L, 4, 3)
+        hc = np.einsum("lvk,ck->lvc", corners, planes) - off                   # (L, 4, C)
+        lo_c, hi_c = hc.min(axis=1), hc.max(axis=1)
+        # apart[light, side, b, c]: every triangle of shading class b may skip class c
+        apart = np.ones((n_light, 3, real.size, real.size), bool)
+        row_of = np.full(n_cls, -1, np.int64)
+        row_of[real] = np.arange(real.size)
+        shading = np.flatnonzero(row_of[cls] >= 0)
+        shading = shading[np.argsort(cls[shading], kind="stable")]
+        for s0 in range(0, shading.size, 8192):
+            idx = shading[s0:s0 + 8192]
+            b = row_of[cls[idx]]
+            starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+            ht = np.einsum("tvk,ck->tvc", tri[idx], planes) - off               # (t, 3, C)
+            lo_t, hi_t = ht.min(axis=1), ht.max(axis=1)
+            nn = nrm[idx] @ planes.T                                            # (t, C)
+            for side in (-1, 0, 1):
+                shift = side * self.epsilon * nn
+                for light in range(n_light):
+                    lo_l, hi_l = lo_c[light] + shift, hi_c[light] + shift
+                    ok = (((lo_t + shift >= width - touch) & (lo_l >= width + margin))
+                          | ((hi_t + shift <= touch - width) & (hi_l <= -width - margin)))
+                    apart[light, side + 1, b[starts]] &= np.logical_and.reduceat(ok, starts, axis=0)
+        bits = np.left_shift(np.uint64(1), real.astype(np.uint64))             # (C,)
+        skip = np.bitwise_or.reduce(np.where(apart, bits, np.uint64(0)), axis=3)  # (L, 3, C_b)
+        for light in range(n_light):
+            for side in range(3):
+                keep[(light * n_cls + real) * 3 + side] = ~skip[light, side]
+        return keep
+
     def shadow_keys(self, prim, side, light=None) -> np.ndarray:
         """Keys of shadow rays for :meth:`occluded`.
 
@@ -288,10 +359,13 @@ class Tracer:
             environment): every triangle stays a candidate.
         """
         prim = np.asarray(prim, dtype=np.int64)
-        if self._cand is None:          # the BVH needs no keys
-            return np.zeros_like(prim)
         side = np.asarray(side).astype(np.int64)
         light = np.zeros_like(prim) if light is None else np.asarray(light, dtype=np.int64)
+        if self.accel == "bvh":         # keys of plane classes (_build_class_table); spheres: the last class
+            cls = np.where(prim < self.n_triangles,
+                           np.take(self._bvh.tri_class, np.minimum(prim, self.n_triangles - 1)), _bvh.CLASSES - 1)
+            keys = (light * _bvh.CLASSES + cls) * 3 + side + 1
+            return np.where(light >= 0, keys, self._shadow_keep.shape[0] - 1)
         keys = (light * self._n_prims + prim) * 3 + side + 1
         return np.where(light >= 0, keys, self._cand.shape[0] - 1)
 
@@ -451,7 +525,8 @@ class Tracer:
     def _any_triangles(self, o, d, tmax, keys):
         n = o.shape[1]
         if self.accel == "bvh":
-            return _bvh.occluded(self._bvh, o, d, tmax, self.epsilon)
+            keep = None if keys is None else np.take(self._shadow_keep, keys)
+            return _bvh.occluded(self._bvh, o, d, tmax, self.epsilon, keep=keep)
         occ = np.zeros(n, dtype=bool)
         blocks, lo, hi = self._shadow_blocks(keys)
         if not blocks:
