@@ -286,58 +286,69 @@ class Tracer:
         ``c`` (its triangles within ``w_c`` of one plane, ``w_c`` measured) is
         skipped for a key when every triangle of the shading class, moved off
         its surface by ``side * ray_epsilon``, lies on or beyond ``w_c - touch``
-        on one side of the plane and the light, moved alike, beyond ``w_c +
-        margin`` on the same side: the segment then meets the slab holding
-        ``c``'s triangles only within ``ray_epsilon`` of its start. The last
-        class (the scene's smaller planes) is never skipped and keys none.
+        on one side of the plane and the light, moved by any of those moves,
+        beyond ``w_c + margin`` on the same side: the segment then meets the
+        slab holding ``c``'s triangles only within ``ray_epsilon`` of its
+        start. The last class (the scene's smaller planes) is never skipped
+        and keys none. Cost ``O(T CLASSES)`` (0.04 s at 94k triangles).
         """
         scene, bvh = self.scene, self._bvh
         n_light, n_cls = scene.n_lights, _bvh.CLASSES
         keep = np.full(n_light * n_cls * 3 + 1, np.iinfo(np.uint64).max, dtype=np.uint64)
         cls = bvh.tri_class.astype(np.int64)
-        real = np.flatnonzero(np.bincount(cls, minlength=n_cls)[:n_cls - 1])
-        if not n_light or not real.size:
+        # the triangles of the real classes (all but the last), sorted by class
+        mine = np.flatnonzero(cls < n_cls - 1)
+        if not n_light or not mine.size:
             return keep
-        tri, nrm = scene.triangles, self.triangle_normal
-        scale = max(1.0, float(np.abs(tri).max()))
+        mine = mine[np.argsort(cls[mine], kind="stable")]
+        c_of = cls[mine]
+        starts = np.flatnonzero(np.r_[True, c_of[1:] != c_of[:-1]])
+        real = c_of[starts]                                                  # (C,) class numbers
+        row = np.repeat(np.arange(real.size), np.diff(np.r_[starts, mine.size]))
+        tri, nrm = scene.triangles[mine], self.triangle_normal[mine]
+        scale = max(1.0, float(np.abs(scene.triangles).max()))
         margin = max(0.25 * self.epsilon, 4e-6 * scale)
         touch = 1e-9 * scale
-        # every real class's plane: the area-weighted normal, the mean offset, the slab's half width
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-        plane = np.zeros((n_cls, 3))
-        np.add.at(plane, cls, nrm * area[:, None])
-        plane /= np.maximum(np.linalg.norm(plane, axis=1, keepdims=True), 1e-300)
-        h = np.einsum("tvk,tk->tv", tri, plane[cls])                       # (T, 3)
-        off = np.bincount(cls, weights=h.sum(axis=1), minlength=n_cls) / np.maximum(
-            3 * np.bincount(cls, minlength=n_cls), 1)
-        width = np.zeros(n_cls)
-        np.maximum.at(width, cls, np.abs(h - off[cls, None]).max(axis=1))
-        planes, off, width = plane[real], off[real], width[real]           # (C, 3), (C,), (C,)
+        # every class's plane: the area-weighted normal, the mean offset, the slab's half width
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])           # 2 area x normal
+        planes = np.add.reduceat(cross, starts, axis=0)
+        planes /= np.maximum(np.linalg.norm(planes, axis=1, keepdims=True), 1e-300)
+        h = np.einsum("tvk,tk->tv", tri, planes[row])                           # (t, 3)
+        off = np.add.reduceat(h.sum(axis=1), starts) / (3 * np.diff(np.r_[starts, mine.size]))
+        width = np.maximum.reduceat(np.abs(h - off[row, None]).max(axis=1), starts)
         corners = np.stack([scene.light_origin, scene.light_origin + scene.light_edge1,
                             scene.light_origin + scene.light_edge1 + scene.light_edge2,
                             scene.light_origin + scene.light_edge2], axis=1)      # (L, 4, 3)
         hc = np.einsum("lvk,ck->lvc", corners, planes) - off                   # (L, 4, C)
         lo_c, hi_c = hc.min(axis=1), hc.max(axis=1)
-        # apart[light, side, b, c]: every triangle of shading class b may skip class c
-        apart = np.ones((n_light, 3, real.size, real.size), bool)
-        row_of = np.full(n_cls, -1, np.int64)
-        row_of[real] = np.arange(real.size)
-        shading = np.flatnonzero(row_of[cls] >= 0)
-        shading = shading[np.argsort(cls[shading], kind="stable")]
-        for s0 in range(0, shading.size, 8192):
-            idx = shading[s0:s0 + 8192]
-            b = row_of[cls[idx]]
-            starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
-            ht = np.einsum("tvk,ck->tvc", tri[idx], planes) - off               # (t, 3, C)
-            lo_t, hi_t = ht.min(axis=1), ht.max(axis=1)
-            nn = nrm[idx] @ planes.T                                            # (t, C)
+        # per shading class b, side and plane class c: the extremes over b's triangles of their
+        # distances to c's plane once moved off by side * eps (lo, hi) and of the move (s_lo, s_hi)
+        n_c = real.size
+        lo = np.full((3, n_c, n_c), np.inf)
+        hi = np.full((3, n_c, n_c), -np.inf)
+        s_lo, s_hi = np.full((3, n_c, n_c), np.inf), np.full((3, n_c, n_c), -np.inf)
+        for s0 in range(0, mine.size, 8192):
+            sl = slice(s0, s0 + 8192)
+            b = row[sl]
+            first = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+            rows = b[first]
+            ht = tri[sl] @ planes.T                                             # (t, 3, C)
+            lo_t = np.minimum(np.minimum(ht[:, 0], ht[:, 1]), ht[:, 2]) - off
+            hi_t = np.maximum(np.maximum(ht[:, 0], ht[:, 1]), ht[:, 2]) - off
+            nn = nrm[sl] @ planes.T                                             # (t, C)
             for side in (-1, 0, 1):
                 shift = side * self.epsilon * nn
-                for light in range(n_light):
-                    lo_l, hi_l = lo_c[light] + shift, hi_c[light] + shift
-                    ok = (((lo_t + shift >= width - touch) & (lo_l >= width + margin))
-                          | ((hi_t + shift <= touch - width) & (hi_l <= -width - margin)))
-                    apart[light, side + 1, b[starts]] &= np.logical_and.reduceat(ok, starts, axis=0)
+                k = side + 1
+                lo[k, rows] = np.minimum(lo[k, rows], np.minimum.reduceat(lo_t + shift, first, axis=0))
+                hi[k, rows] = np.maximum(hi[k, rows], np.maximum.reduceat(hi_t + shift, first, axis=0))
+                s_lo[k, rows] = np.minimum(s_lo[k, rows], np.minimum.reduceat(shift, first, axis=0))
+                s_hi[k, rows] = np.maximum(s_hi[k, rows], np.maximum.reduceat(shift, first, axis=0))
+        # class c may be skipped when every moved triangle of b is on or beyond w_c - touch on
+        # one side and the light, moved by any of their moves, beyond w_c + margin on that side
+        # (the per-triangle rule needs this of each triangle; asking it of the extremes is
+        # stricter, so it skips no more than the triangles' rule does)
+        apart = ((lo >= width - touch) & (lo_c[:, None, None, :] + s_lo >= width + margin)) \
+            | ((hi <= touch - width) & (hi_c[:, None, None, :] + s_hi <= -width - margin))   # (L, 3, C_b, C)
         bits = np.left_shift(np.uint64(1), real.astype(np.uint64))             # (C,)
         skip = np.bitwise_or.reduce(np.where(apart, bits, np.uint64(0)), axis=3)  # (L, 3, C_b)
         for light in range(n_light):
