@@ -373,8 +373,9 @@ class Tracer:
         side = np.asarray(side).astype(np.int64)
         light = np.zeros_like(prim) if light is None else np.asarray(light, dtype=np.int64)
         if self.accel == "bvh":         # keys of plane classes (_build_class_table); spheres: the last class
-            cls = np.where(prim < self.n_triangles,
-                           np.take(self._bvh.tri_class, np.minimum(prim, self.n_triangles - 1)), _bvh.CLASSES - 1)
+            tri = (prim >= 0) & (prim < self.n_triangles)
+            cls = np.where(tri, np.take(self._bvh.tri_class, np.clip(prim, 0, self.n_triangles - 1)),
+                           _bvh.CLASSES - 1)
             keys = (light * _bvh.CLASSES + cls) * 3 + side + 1
             return np.where(light >= 0, keys, self._shadow_keep.shape[0] - 1)
         keys = (light * self._n_prims + prim) * 3 + side + 1
