@@ -24,7 +24,9 @@ before the ray's closest hit so far become the next round's pairs, and the
 leaves among them are intersected in the same round (all ``WIDTH`` triangle
 slots of every (ray, leaf) pair at once), so a hit found at one level prunes
 the boxes of the next. Any-hit queries (shadow rays) drop a ray's pairs as
-soon as it is occluded.
+soon as it is occluded, and, given per-ray masks of the plane classes that
+may occlude it (:attr:`BVH.tri_class`, :meth:`mcvar.tracer.Tracer.shadow_keys`),
+every slot none of whose classes is in the ray's mask (:attr:`BVH.wmask`).
 
 Layout (measured on this project's 2-core machines, NumPy 2): gathers of
 *runs* of ``WIDTH`` contiguous numbers (``np.take(a, idx, axis=1)`` on a
@@ -42,7 +44,7 @@ fastest on the subdivided Cornell box from 122 to 94,000 triangles. Float32
 distances agree with float64 to ``2e-4`` relative plus the rounding of the
 ray origin (about one ulp of the scene's size over ``|cos theta|``).
 
-Memory: nodes and leaves ``O(T)`` (about 125 bytes a triangle); pairs bounded
+Memory: nodes and leaves ``O(T)`` (about 130 bytes a triangle); pairs bounded
 by the chunk of rays.
 """
 from __future__ import annotations
