@@ -24,7 +24,9 @@ before the ray's closest hit so far become the next round's pairs, and the
 leaves among them are intersected in the same round (all ``WIDTH`` triangle
 slots of every (ray, leaf) pair at once), so a hit found at one level prunes
 the boxes of the next. Any-hit queries (shadow rays) drop a ray's pairs as
-soon as it is occluded.
+soon as it is occluded, and, given per-ray masks of the plane classes that
+may occlude it (:attr:`BVH.tri_class`, :meth:`mcvar.tracer.Tracer.shadow_keys`),
+every slot none of whose classes is in the ray's mask (:attr:`BVH.wmask`).
 
 Layout (measured on this project's 2-core machines, NumPy 2): gathers of
 *runs* of ``WIDTH`` contiguous numbers (``np.take(a, idx, axis=1)`` on a
@@ -42,7 +44,7 @@ fastest on the subdivided Cornell box from 122 to 94,000 triangles. Float32
 distances agree with float64 to ``2e-4`` relative plus the rounding of the
 ray origin (about one ulp of the scene's size over ``|cos theta|``).
 
-Memory: nodes and leaves ``O(T)`` (about 125 bytes a triangle); pairs bounded
+Memory: nodes and leaves ``O(T)`` (about 130 bytes a triangle); pairs bounded
 by the chunk of rays.
 """
 from __future__ import annotations
@@ -53,7 +55,7 @@ import numpy as np
 
 from ._validation import check_count
 
-__all__ = ["BVH", "build_bvh", "triangle_maps", "closest", "occluded", "WIDTH"]
+__all__ = ["BVH", "build_bvh", "triangle_maps", "closest", "occluded", "WIDTH", "CLASSES"]
 
 #: Candidate split planes per axis and node (Wald 2007 uses 16; 12 measured as good).
 SAH_BINS = 12
@@ -67,6 +69,10 @@ CHUNK = 8192
 #: the slab test, so ``1 / d`` is finite and ``(lo - o) / d`` never NaN; the
 #: change moves the ray by less than ``|t| * TINY``, far inside the boxes' padding.
 TINY = 1e-20
+#: Plane classes of the shadow-ray masks (bits of a uint64): the ``CLASSES - 1``
+#: planes holding the most triangles get a class each, every other triangle the
+#: last class, which no shadow ray skips (:attr:`BVH.tri_class`).
+CLASSES = 64
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,6 +101,13 @@ class BVH:
         The ray-test maps (:func:`triangle_maps`) of every leaf's triangles; NaN in empty slots.
     leaf_prim : ndarray of int64, shape (L, width)
         The triangle of every leaf slot (-1 in empty slots).
+    tri_class : ndarray of uint8, shape (T,)
+        Every triangle's plane class (0 ... :data:`CLASSES` - 1): one of the
+        largest planes, or the last class for the rest.
+    wmask : ndarray of uint64, shape (W, width)
+        The plane classes under every slot of a wide node, as bits (0 in empty
+        slots): an any-hit query given per-ray class masks (``occluded(...,
+        keep=)``) skips the slots none of whose classes its ray may hit.
     """
 
     lo: np.ndarray
@@ -109,6 +122,8 @@ class BVH:
     wchild: np.ndarray
     leaf_maps: np.ndarray
     leaf_prim: np.ndarray
+    tri_class: np.ndarray
+    wmask: np.ndarray
 
     @property
     def n_nodes(self) -> int:
@@ -124,7 +139,8 @@ class BVH:
     def nbytes(self) -> int:
         """Bytes of all arrays (binary tree, wide tree and leaves)."""
         return sum(a.nbytes for a in (self.lo, self.hi, self.child, self.start, self.count, self.order,
-                                      self.wbox, self.wchild, self.leaf_maps, self.leaf_prim))
+                                      self.wbox, self.wchild, self.leaf_maps, self.leaf_prim,
+                                      self.tri_class, self.wmask))
 
 
 def _segment_reduce(op, values, start, count, fill):
@@ -290,10 +306,25 @@ def build_bvh(triangles, *, leaf_size: int = LEAF_SIZE, bins: int = SAH_BINS, wi
     hi = np.ascontiguousarray(hi + pad, np.float32)
     child = np.concatenate(child)
     start, count = np.concatenate(starts), np.concatenate(counts)
-    wbox, wchild = _collapse(lo, hi, child, width, np.dtype(dtype))
+    tri_class = _plane_classes(tri_plane)
+    bits = np.left_shift(np.uint64(1), tri_class.astype(np.uint64))
+    node_bits = _segment_reduce(np.bitwise_or, bits[order], start, count, 0)
+    wbox, wchild, wmask = _collapse(lo, hi, child, width, np.dtype(dtype), node_bits)
     leaf_maps, leaf_prim = _leaves(child, start, count, order, width, triangle_maps(tri, dtype))
     return BVH(lo=lo, hi=hi, child=child, start=start, count=count, order=order, depth=depth, width=width,
-               wbox=wbox, wchild=wchild, leaf_maps=leaf_maps, leaf_prim=leaf_prim)
+               wbox=wbox, wchild=wchild, leaf_maps=leaf_maps, leaf_prim=leaf_prim, tri_class=tri_class,
+               wmask=wmask)
+
+
+def _plane_classes(label):
+    """:attr:`BVH.tri_class` from the plane labels of :func:`_planes`: the
+    ``CLASSES - 1`` planes with the most triangles (ties: the lower label)
+    numbered by size, every other triangle in the last class."""
+    sizes = np.bincount(label)
+    top = np.lexsort((np.arange(sizes.size), -sizes))[:CLASSES - 1]
+    of_plane = np.full(sizes.size, CLASSES - 1, np.uint8)
+    of_plane[top] = np.arange(top.size, dtype=np.uint8)
+    return of_plane[label]
 
 
 
@@ -329,20 +360,21 @@ def _planes(tri, t_lo, t_hi):
     return label, 0.5 * (lo + hi)
 
 
-def _collapse(lo, hi, child, width, dtype):
+def _collapse(lo, hi, child, width, dtype, node_bits):
     """The wide tree of a binary one, level by level in array operations.
 
     A wide node starts as its binary node and, while it has fewer than
     ``width`` slots, opens its inner slot of largest surface area into that
     node's two children (the greedy collapse of Wald et al. 2008, 'Getting
     rid of packets'; every wide node of a level at once). Returns
-    :attr:`BVH.wbox` and :attr:`BVH.wchild`.
+    :attr:`BVH.wbox`, :attr:`BVH.wchild` and :attr:`BVH.wmask` (the slots'
+    ``node_bits``, the plane classes under every binary node).
     """
     leaf_of = np.full(child.size, -1, np.int64)
     is_leaf = child < 0
     leaf_of[is_leaf] = np.arange(int(is_leaf.sum()))
     area = _half_area(lo.astype(np.float64), hi.astype(np.float64))
-    boxes, children = [], []
+    boxes, children, masks = [], [], []
     owners = np.zeros(1, np.int64)           # binary node of each wide node of this level
     n_wide = 1
     while owners.size:
@@ -371,13 +403,17 @@ def _collapse(lo, hi, child, width, dtype):
         inner = child[node] >= 0
         code = np.zeros((k, width), np.int64)
         code[own, slot] = np.where(inner, 0, ~leaf_of[node])
+        mask = np.zeros((k, width), np.uint64)
+        mask[own, slot] = node_bits[node]
+        masks.append(mask)
         nxt = node[inner]
         code[own[inner], slot[inner]] = n_wide + np.arange(nxt.size)
         boxes.append(box)
         children.append(code)
         n_wide += nxt.size
         owners = nxt
-    return np.ascontiguousarray(np.concatenate(boxes, axis=1)), np.ascontiguousarray(np.concatenate(children))
+    return (np.ascontiguousarray(np.concatenate(boxes, axis=1)), np.ascontiguousarray(np.concatenate(children)),
+            np.ascontiguousarray(np.concatenate(masks)))
 
 
 def _leaves(child, start, count, order, width, maps):
@@ -489,7 +525,7 @@ class _Chunk:
     rows 0-6 and the triangle test rows 3-9 of a pair's ray in one ``take``
     each."""
 
-    def __init__(self, bvh: BVH, o, d, tmax, eps, any_hit):
+    def __init__(self, bvh: BVH, o, d, tmax, eps, any_hit, keep=None):
         w, n, dt = bvh.width, o.shape[1], bvh.dtype
         self.bvh, self.w, self.eps, self.any_hit = bvh, w, dt.type(eps), any_hit
         self.shift = w.bit_length() - 1
@@ -509,6 +545,8 @@ class _Chunk:
         self.occ = np.zeros(n, bool)
         self.fresh = False                      # any ray occluded since the last filter
         self.wchild, self.lprim = bvh.wchild.ravel(), bvh.leaf_prim.ravel()
+        #: per-ray plane-class masks of an any-hit query (None: every slot may occlude)
+        self.keep, self.wmask = keep, bvh.wmask.ravel()
 
     def boxes(self, ray, node):
         """Hit mask and entry distances (P, w) of the slots of (ray, node) pairs."""
@@ -519,7 +557,15 @@ class _Chunk:
         ok, _ = self.boxes(ray, node)
         f = np.flatnonzero(ok)
         pair = f >> self.shift
-        return np.take(ray, pair), np.take(self.wchild, (np.take(node, pair) << self.shift) | (f & (self.w - 1)))
+        slot = (np.take(node, pair) << self.shift) | (f & (self.w - 1))
+        ray = np.take(ray, pair)
+        if self.keep is not None:
+            # slots holding no plane class the ray's key may meet are skipped (exact: Tracer.shadow_keys)
+            may = np.take(self.wmask, slot)
+            may &= np.take(self.keep, ray)
+            live = may != 0
+            slot, ray = slot[live], ray[live]
+        return ray, np.take(self.wchild, slot)
 
     def leaves(self, lr, lf):
         """Intersect (ray, leaf) pairs; closest hits or occlusion recorded."""
@@ -550,8 +596,12 @@ class _Chunk:
 
 
 def _any_hit(c: _Chunk, n):
-    """Breadth first: every hit slot becomes a pair of the next round; occluded rays drop out."""
+    """Breadth first: every hit slot becomes a pair of the next round; occluded rays drop out,
+    and so do slots whose plane classes the ray's key excludes."""
     ray, node = np.arange(n), np.zeros(n, np.int64)
+    if c.keep is not None:
+        ray = np.flatnonzero(c.keep & np.bitwise_or.reduce(c.wmask[:c.w]))
+        node = node[:ray.size]
     while ray.size:
         ray, node = c.split(*c.children(ray, node))
         if c.fresh and ray.size:
@@ -576,9 +626,9 @@ def _closest(c: _Chunk, n):
     return best.astype(np.float64), prim
 
 
-def _traverse(bvh: BVH, o, d, tmax, eps, any_hit):
+def _traverse(bvh: BVH, o, d, tmax, eps, any_hit, keep=None):
     """One chunk of SoA rays (3, n): closest ``(t, prim)`` or, with ``any_hit``, the occluded mask."""
-    c = _Chunk(bvh, o, d, tmax, eps, any_hit)
+    c = _Chunk(bvh, o, d, tmax, eps, any_hit, keep)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         return (_any_hit if any_hit else _closest)(c, o.shape[1])
 
@@ -606,11 +656,21 @@ def closest(bvh: BVH, o, d, tmax, eps: float, chunk: int = CHUNK):
     return t_out, p_out
 
 
-def occluded(bvh: BVH, o, d, tmax, eps: float, chunk: int = CHUNK) -> np.ndarray:
-    """Any-hit test of SoA rays (3, n): True where a triangle lies in ``(eps, tmax)``."""
+def occluded(bvh: BVH, o, d, tmax, eps: float, chunk: int = CHUNK, keep=None) -> np.ndarray:
+    """Any-hit test of SoA rays (3, n): True where a triangle lies in ``(eps, tmax)``.
+
+    ``keep`` (n,) uint64, optional: per ray, the plane classes
+    (:attr:`BVH.tri_class` as bits) whose triangles may occlude it; the
+    others are not tested (the caller vouches that they cannot lie in
+    ``(eps, tmax)``: :meth:`mcvar.tracer.Tracer.shadow_keys`).
+    """
     o, d, tmax, n = _check_rays(bvh, o, d, tmax)
+    if keep is not None:
+        keep = np.asarray(keep)
+        if keep.dtype != np.uint64 or keep.shape != (n,):
+            raise ValueError(f"keep must be a uint64 array of shape ({n},); got {keep.dtype} {keep.shape}")
     occ = np.zeros(n, bool)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        occ[sl] = _traverse(bvh, o[:, sl], d[:, sl], tmax[sl], eps, True)
+        occ[sl] = _traverse(bvh, o[:, sl], d[:, sl], tmax[sl], eps, True, None if keep is None else keep[sl])
     return occ

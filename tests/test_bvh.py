@@ -332,3 +332,39 @@ def test_a_bvh_tracer_keeps_no_brute_force_maps():
     bvh, groups = Tracer(scene, accel="bvh"), Tracer(scene, accel="groups")
     for name in ("_inv", "_inv_o", "_offset"):
         assert not hasattr(bvh, name) and hasattr(groups, name)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_shadow_keys_skip_plane_classes_and_answer_as_brute_force(dtype):
+    """Next-event shadow rays with their keys (from either side of random points of
+    the subdivided box, edges and corners included, to the light): the BVH skips the
+    plane classes that cannot lie between origin and light, and answers as without
+    keys and as its own closest-hit query; in float64 as brute force over groups. The
+    keys do skip: a floor point lit from above skips the walls, the floor and the
+    ceiling but keeps every block face; a ray without a key skips nothing."""
+    from test_tracer import _shadow_rays
+
+    rng = np.random.default_rng(SEED + 40)
+    scene = subdivide(load_scene("cornell"), 8)                   # 1,922 triangles
+    tr = Tracer(scene, dtype=dtype, accel="bvh")
+    o, w, tmax, keys = _shadow_rays(scene, tr, 20000, rng)
+    closest = tr.intersect(o, w, tmax).prim >= 0
+    assert 0.05 < closest.mean() < 0.95
+    np.testing.assert_array_equal(tr.occluded(o, w, tmax, keys=keys), closest)
+    np.testing.assert_array_equal(tr.occluded(o, w, tmax), closest)
+    if dtype == "float64":
+        brute = Tracer(scene, dtype="float64", accel="groups")
+        np.testing.assert_array_equal(tr.occluded(o, w, tmax, keys=keys), brute.occluded(o, w, tmax))
+    # what the keys skip: classes as bits of the BVH's uint64 masks
+    cls = tr._bvh.tri_class
+    group = scene.prim_group[:scene.n_triangles]
+    light = scene.prim_light[:scene.n_triangles] >= 0
+    floor = int(np.flatnonzero((np.abs(scene.triangles[:, :, 1]).max(axis=1) < 1e-9) & ~light)[0])
+    key = tr.shadow_keys(np.array([floor]), np.array([1]))[0]
+    keep = int(tr._shadow_keep[key])
+    kept = {c for c in range(B.CLASSES) if keep >> c & 1}
+    assert set(cls[group > 0]) <= kept                                       # block faces may occlude
+    assert not set(cls[(group == 0) & ~light]) & kept, kept                  # no wall, floor or ceiling
+    assert int(tr._shadow_keep[tr.shadow_keys(np.array([floor]), np.array([1]), np.array([-1]))[0]]) == 2 ** 64 - 1
+    # every class of more than one triangle is one plane; the rest share the last class
+    assert cls.max() < B.CLASSES and len(set(cls)) == 17

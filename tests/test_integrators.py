@@ -499,6 +499,50 @@ def test_any_executor_renders_the_same_image(cornell):
         render(cornell, executor=4)
 
 
+def test_the_render_pool_receives_the_tracer_once_not_with_every_batch(cornell, monkeypatch):
+    """A pool's processes get the render's scene, tracer and prepared data when they
+    start; a batch then pickles them as a token, so what is submitted per batch is a
+    small fraction of the tracer (a per-batch pickled tracer, the old behaviour, sends
+    at least the tracer's bytes every time; a kept pool started for another render still
+    does, and is measured here to show the count would see it). Same image throughout."""
+    import pickle
+
+    from mcvar.integrators import WorkerPool
+    from mcvar.integrators.driver import _WorkerSlot
+    from mcvar.tessellate import subdivide
+    from mcvar.tracer import Tracer
+
+    scene = subdivide(cornell, 8)                        # 1,922 triangles: a BVH tracer
+    tracer_bytes = len(pickle.dumps(Tracer(scene)))
+    assert tracer_bytes > 100_000
+    sizes = []
+    submit = WorkerPool.submit
+
+    def counting(self, fn, *args, **kwargs):
+        sizes.append(len(pickle.dumps((fn, args, kwargs))))
+        return submit(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(WorkerPool, "submit", counting)
+    kw = dict(spp=4, res=8, rng=SEED + 150, batch_spp=1, sampler="sobol")
+    one = render(scene, **kw)
+    two = render(scene, workers=2, **kw)                 # the render's own pool
+    own = list(sizes)
+    with WorkerPool(1) as pool:
+        first = render(scene, executor=pool, **kw)       # a kept pool, not yet started: bound to this render
+        bound = sizes[len(own):]
+        second = render(scene, executor=pool, **kw)      # started for another render: full batches
+        full = sizes[len(own) + len(bound):]
+    for r in (two, first, second):
+        np.testing.assert_array_equal(one.image, r.image)
+        np.testing.assert_array_equal(one.variance, r.variance)
+    assert own and bound and full
+    # a batch's own data (its pixels' slice of the sample pattern) is ~10 kB here
+    assert max(own) < tracer_bytes / 10 and max(bound) < tracer_bytes / 10, (max(own), max(bound), tracer_bytes)
+    assert min(full) - max(bound) > 0.9 * tracer_bytes, (min(full), max(bound), tracer_bytes)
+    with pytest.raises(RuntimeError, match="was not started with"):
+        _WorkerSlot.get("not-a-render")               # this process holds no render's data
+
+
 def test_a_render_too_big_for_memory_is_refused_before_any_work(cornell):
     from mcvar.integrators import MAX_RENDER_BYTES, estimate_render_bytes
 

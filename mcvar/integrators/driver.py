@@ -6,16 +6,19 @@ Every method and both sample allocations run through :func:`render`: the
 allocation (:mod:`mcvar.integrators.allocation`: uniform spp batches, or
 adaptive two-stage sampling) decides the stages and their batches, the driver
 runs them. Batch ``b`` of a stage is a picklable description (the method, the
-scene, the render's tracer, its pixels, its seed and its slice of the sample
-pattern) that any ``concurrent.futures.Executor``-like object runs
-(``executor.submit``); descriptions are made lazily, a bounded window of them
-in flight. Results reach the film in batch order, so the image does not depend
+render's shared data: scene, tracer, prepared data; its pixels, its seed and its
+slice of the sample pattern) that any ``concurrent.futures.Executor``-like object
+runs (``executor.submit``); descriptions are made lazily, a bounded window of them
+in flight. The render's own :class:`WorkerPool` receives the shared data once per
+process, when it starts (:class:`_Shared`), and its batches carry only a token: a
+tracer of 100k triangles (26 MB) is not pickled into every batch. Results reach the film in batch order, so the image does not depend
 on which executor ran the batches or in what order they finished.
 """
 from __future__ import annotations
 
 import os
 import time
+import uuid
 from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import closing
@@ -93,16 +96,37 @@ class WorkerPool(Executor):
 
     Processes are started (``fork`` where available) on the first
     :meth:`submit`; :meth:`shutdown` (or leaving the ``with`` block) ends them.
+    They start holding the scene, tracer and prepared data of the render that
+    first used the pool (:meth:`bind`), whose batches then carry none of it;
+    later renders on a kept pool send those inside every batch (for a scene
+    of 100k triangles, 26 MB a batch: give such renders a pool each).
     """
 
     def __init__(self, workers: int):
         #: processes (the driver keeps ``2 workers + 2`` batches in flight)
         self.workers = check_count(workers, "workers")
         self._executor: ProcessPoolExecutor | None = None
+        self._shared: _Shared | None = None
+
+    def bind(self, shared: "_Shared") -> bool:
+        """Hand a render's :class:`_Shared` data to the processes once, when they start.
+
+        True when the processes hold ``shared``: they are not started yet (they
+        will get it at their start: inherited under ``fork``, pickled once per
+        process otherwise) or were started with it; from then on a batch
+        pickles ``shared`` as its token. False when they were started for
+        another render (a kept pool): batches then carry everything.
+        """
+        if self._executor is None and self._shared is None:
+            self._shared = shared
+            shared.in_workers = True
+        return self._shared is shared
 
     def submit(self, fn, /, *args, **kwargs):
         if self._executor is None:
-            self._executor = ProcessPoolExecutor(max_workers=self.workers, mp_context=_pool_context())
+            init = {} if self._shared is None else dict(initializer=_WorkerSlot.install,
+                                                        initargs=(self._shared.payload(),))
+            self._executor = ProcessPoolExecutor(max_workers=self.workers, mp_context=_pool_context(), **init)
         return self._executor.submit(fn, *args, **kwargs)
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
@@ -114,14 +138,68 @@ class WorkerPool(Executor):
 # ---------------------------------------------------------------------------
 # Batches
 
+class _Shared:
+    """What every batch of one render reads and none changes: the scene, the
+    render's tracer (built once: ~20 kB for the Cornell box, ~26 MB at 87k
+    triangles) and what the method's ``prepare`` made.
+
+    Pickled in full (a batch is then self-contained: any executor runs it),
+    except once :meth:`WorkerPool.bind` gave it to a pool's processes at their
+    start: then it pickles as its token, and the process that unpickles it
+    finds it in its :class:`_WorkerSlot`. So the render's own pool receives the
+    tracer once per process, not once per batch.
+    """
+
+    def __init__(self, scene: Scene, tracer: Tracer, prepared, token: str | None = None):
+        self.scene, self.tracer, self.prepared = scene, tracer, prepared
+        #: names this render's data across processes
+        self.token = uuid.uuid4().hex if token is None else token
+        #: set by :meth:`WorkerPool.bind`: the pool's processes hold it
+        self.in_workers = False
+
+    def payload(self) -> tuple:
+        """The arguments that rebuild it in a worker (:meth:`_WorkerSlot.install`)."""
+        return self.scene, self.tracer, self.prepared, self.token
+
+    def __reduce__(self):
+        if self.in_workers:
+            return _WorkerSlot.get, (self.token,)
+        return _Shared, self.payload()
+
+
+class _WorkerSlot:
+    """The :class:`_Shared` data a pool's process received at its start.
+
+    One slot per process, filled by the pool's initializer
+    (:meth:`install`) and read by every batch the process unpickles
+    (:meth:`get`); its lifetime is the worker process's, which is the
+    :class:`WorkerPool`'s (the render's own pool ends with the render). The
+    calling process never fills it.
+    """
+
+    shared: _Shared | None = None
+
+    @staticmethod
+    def install(payload: tuple) -> None:
+        _WorkerSlot.shared = _Shared(*payload)
+
+    @staticmethod
+    def get(token: str) -> _Shared:
+        shared = _WorkerSlot.shared
+        if shared is None or shared.token != token:
+            raise RuntimeError("a batch names render data this worker process was not started with "
+                               "(a WorkerPool's processes hold the data of the render they were started for)")
+        return shared
+
+
 @dataclass(frozen=True, eq=False)
 class _Batch:
     """One batch, picklable: what crosses to the process that runs it (the
-    tracer included: built once per render, ~20 kB for the Cornell box)."""
+    render's :class:`_Shared` data in full, or only its token when the pool's
+    processes hold it)."""
 
     method: Method
-    scene: Scene
-    tracer: Tracer
+    shared: _Shared
     res: tuple
     pixels: np.ndarray | None
     spp: int
@@ -132,7 +210,6 @@ class _Batch:
     bit_generator: type
     settings: PathSettings
     options: dict
-    prepared: object
 
     @property
     def paths(self) -> int:
@@ -145,8 +222,9 @@ def _run_batch(batch: _Batch):
     rng = np.random.Generator(batch.bit_generator(batch.seed))
     n_pix = batch.res[0] * batch.res[1] if batch.pixels is None else batch.pixels.shape[0]
     u = batch_stream(batch.sampler, n_pix, batch.spp, batch.dim, batch.whole, rng)
-    job = BatchJob(scene=batch.scene, tracer=batch.tracer, res=batch.res, spp=batch.spp, sampler=batch.sampler,
-                   u=u, rng=rng, settings=batch.settings, options=dict(batch.options), prepared=batch.prepared,
+    shared = batch.shared
+    job = BatchJob(scene=shared.scene, tracer=shared.tracer, res=batch.res, spp=batch.spp, sampler=batch.sampler,
+                   u=u, rng=rng, settings=batch.settings, options=dict(batch.options), prepared=shared.prepared,
                    pixels=batch.pixels)
     return batch.method.run_batch(job)
 
@@ -356,7 +434,8 @@ class _Streams:
 
 class _Render:
     """One render in progress, with a lifetime (a ``with`` block): the tracer
-    (built once, owned here, shipped inside the batches), the worker pool it
+    (built once, owned here with the scene and prepared data as :class:`_Shared`,
+    handed to its pool's processes once), the worker pool it
     made, the progress bar; :meth:`stage` runs batches, :meth:`result` makes
     the :class:`Render`."""
 
@@ -367,6 +446,7 @@ class _Render:
         self.prepared = plan.method.prepare(plan.scene, plan.options, self.streams.prepare) \
             if plan.method.prepare is not None else None
         self.tracer = Tracer(plan.scene, dtype=plan.run.precision)
+        self.shared = _Shared(plan.scene, self.tracer, self.prepared)
         self.interrupted = False
         self.done = 0
         self.total = 0
@@ -399,10 +479,13 @@ class _Render:
         """``(executor, parent_works)`` for a stage of ``n_batches``."""
         run = self.plan.run
         if run.executor is not None:
+            if isinstance(run.executor, WorkerPool):
+                run.executor.bind(self.shared)      # a pool not yet started takes the render's data once
             return run.executor, False
         if run.workers > 1 and n_batches > 1:
             if self._pool is None:
                 self._pool = WorkerPool(run.workers - 1)
+                self._pool.bind(self.shared)
             return self._pool, True
         return None, False
 
@@ -416,8 +499,8 @@ class _Render:
         bitgen = type(stream.bit_generator)
         dim = plan.dim if method is None else 0
         method = plan.method if method is None else method
-        batches = (_Batch(method, plan.scene, self.tracer, plan.res, spec.pixels, spec.spp, plan.sampler,
-                          dim, spec.whole, _child(stream, i), bitgen, settings, plan.options, self.prepared)
+        batches = (_Batch(method, self.shared, plan.res, spec.pixels, spec.spp, plan.sampler,
+                          dim, spec.whole, _child(stream, i), bitgen, settings, plan.options)
                    for i, spec in enumerate(specs))
         executor, parent_works = self._executor(n_batches)
         unit_spp = self.allocation.progress_unit == "spp"
