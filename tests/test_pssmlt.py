@@ -15,6 +15,7 @@ from mcvar.testing import sidak_significance
 from mcvar.tracer import Tracer
 
 import chain_balance  # tests/chain_balance.py
+import mcvar.integrators.pssmlt as pssmlt_module
 
 
 def render_pssmlt(scene, **kw):
@@ -248,23 +249,28 @@ def _cell_target(yT):
     return f, chain_balance.cell(u), rgbn
 
 
-def _weighted_cells(n_b, n_steps, sigma, p_large, rng):
+def _weighted_cells(n_b, n_steps, sigma, p_large, rng, round_size=1000):
     n_cells = chain_balance.CELLS ** 2
     run = _WeightedRun(n_cells, n_steps, _cell_target, (sigma, p_large), rng)
-    for a in range(0, n_b, 1 << 14):
-        run.bootstrap_chunk(rng.random((chain_balance.DIM, min(1 << 14, n_b - a))))
+    a = 0
+    while a < n_b:
+        m = run.births_allowed(min(round_size, n_b - a))
+        run.bootstrap_chunk(rng.random((chain_balance.DIM, m)))
+        a += m
     run.finish()
     assert run.done == n_b and run.n_chains == n_b      # f > 0 almost everywhere: every start is a chain
     return run.image_sum(n_cells)[:, 0] / (n_b / n_cells), run
 
 
-@pytest.mark.parametrize("n_steps,sigma,p_large", [(8, 0.1, 0.0), (3, 0.02, 0.3)])
-def test_weighted_chains_estimate_the_cells_mass_without_bias(n_steps, sigma, p_large):
+@pytest.mark.parametrize("n_steps,sigma,p_large,cap", [(8, 0.1, 0.0, None), (3, 0.02, 0.3, 1500)])
+def test_weighted_chains_estimate_the_cells_mass_without_bias(n_steps, sigma, p_large, cap, monkeypatch):
     """Veach's weighted start on f = 4 u0 u1: chains started at uniform states with weight
-    f(x0), T steps of pssmlt's own mutation and acceptance, expected-value splats; the film
-    of each of 36 cells against its exact mass n_cells * (b^2 - a^2)(d^2 - c^2): 20 independent
-    runs, Student t per cell, Sidak over the 36 cells x 2 cases. Unweighted starts (the
-    start-up bias) and the wrong normalisation fail it (tried)."""
+    f(x0), T steps of pssmlt's own mutation and acceptance, expected-value splats, the chains'
+    steps traced in the rounds of new states (and, with ``cap``, rounds that wait for chains
+    to retire); the film of each of 36 cells against its exact mass n_cells (b^2 - a^2)(d^2 - c^2):
+    20 independent runs, Student t per cell, Sidak over the 36 cells x 2 cases."""
+    if cap is not None:
+        monkeypatch.setattr(pssmlt_module, "MAX_CHAINS_IN_FLIGHT", cap)
     rng = np.random.default_rng(2026_12_02 + n_steps)
     n_cells = chain_balance.CELLS ** 2
     est = np.array([_weighted_cells(4000, n_steps, sigma, p_large, rng)[0] for _ in range(20)])

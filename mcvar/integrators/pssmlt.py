@@ -72,6 +72,10 @@ BYTES_PER_CHAIN = 8 * 4
 
 _LUM = np.asarray(LUMINANCE_WEIGHTS)
 
+#: ``start='weighted'``: chains in flight at most (each round's new bootstrap states wait while
+#: the chains fill this): a round's wavefront is at most this plus a bootstrap chunk.
+MAX_CHAINS_IN_FLIGHT = 1 << 17
+
 #: Chains stepped in lockstep at once: one wavefront of at most this many
 #: paths per bounce (the path tracer's batch,
 #: :data:`mcvar.integrators.allocation.PATHS_PER_BATCH`), so a
@@ -284,8 +288,12 @@ class _Splatter:
 
     def add(self, pix, rgbn, weight) -> None:
         """Add ``weight * rgb / f`` at each path's pixel (``rgbn`` (3, n), ``weight`` (n,) or a scalar)."""
+        self.add_into(self.film, pix, rgbn, weight)
+
+    def add_into(self, out, pix, rgbn, weight) -> None:
+        """:meth:`add` into ``out`` (a film of the same layout) instead of this one."""
         idx = pix + self._channel                              # (3, n)
-        self.film += np.bincount(idx.ravel(), weights=(rgbn * weight).ravel(), minlength=self.film.size)
+        out += np.bincount(idx.ravel(), weights=(rgbn * weight).ravel(), minlength=self.film.size)
 
     def image_sum(self, b: float) -> np.ndarray:
         return (self.film.reshape(3, self.n_pix) * b).T.copy()
@@ -438,81 +446,124 @@ class _WeightedMoments:
 
 class _WeightedRun:
     """A run with ``start='weighted'``: every bootstrap path that carries light starts one chain
-    of ``T`` steps, weighted by its ``f`` (Veach 1997 section 11.3.4, Cline et al. 2005).
+    of ``T`` steps, weighted by its ``f`` (Veach 1997 section 11.3.4; Cline et al. 2005).
 
-    Lit bootstrap paths wait in a pool until :data:`CHAIN_CHUNK` of them (or the end of the
-    bootstrap) fill one lockstep wavefront; a chain's start (``t = 0``) and its ``T`` steps
-    (expected-value splats) are splatted when it has finished, so the film holds whole
-    chains only. ``done`` counts the bootstrap states whose chains have all finished (FIFO).
+    **One wavefront per round.** Each round traces a bootstrap chunk's new uniform states and
+    the proposals of every chain in flight *in one call of the target*, so the chains' steps
+    ride in the bootstrap's wavefront (on cornell-door about 1.4 % of the paths carry light:
+    the chains alone would be wavefronts of a few thousand paths, each bounce iteration paying
+    NumPy's per-call cost for few paths). The states born in a round (a *cohort*, lit or not)
+    are in flight for the next ``T`` rounds (tail rounds after the bootstrap), then retire.
+
+    **Normalisation.** Every term ``f(x_0) h(x_t)`` (the start at ``t = 0``, each step's
+    expected-value splat) has expectation ``∫ f h`` whatever ``t``; ``D`` counts the terms of
+    every bootstrap state, lit or not, once per round it is in flight, and the image is
+    ``n_pix / D Σ splats``: ``D = n_b (T + 1)`` at the end; an interrupted run counts the rounds
+    it finished (the schedule does not depend on the paths, so the estimate stays unbiased).
     """
+
+    _NAMES = ("luminance", "film_x", "film_y")
+    _KEYS = ("x", "f", "pix", "rgbn", "w") + tuple("sum_" + n for n in _NAMES) + tuple("sq_" + n for n in _NAMES)
 
     def __init__(self, n_pix: int, n_steps: int, target, mutation, rng):
         self.film = _Splatter(n_pix)
         self.moments = _WeightedMoments()
         self.n_steps, self.target, self.mutation, self.rng = n_steps, target, mutation, rng
-        self.pool = []                 # (states (D, k), f, pixel, rgb / f, index in the bootstrap)
-        self.pooled = 0
-        self.seen = self.done = self.n_acc = self.n_chains = 0
+        self.chains = None            # the chains in flight (dict of arrays, birth order), or None
+        self.cohorts = []             # [states born, lit among them, steps made] per round in flight
+        self.terms = 0                # D
+        self.n_acc = self.n_moves = self.n_chains = 0
         self._b = [0.0, 0.0, 0]
 
+    @property
+    def done(self) -> int:
+        """Finished terms in bootstrap states' worth, ``D / (T + 1)`` (all of them at the end)."""
+        return self.terms // (self.n_steps + 1)
+
+    def spp(self, n_pix: int) -> float:
+        return self.terms / ((self.n_steps + 1) * n_pix)
+
+    def births_allowed(self, m: int) -> int:
+        """New states the next round may add: ``m``, fewer once the chains in flight reach
+        :data:`MAX_CHAINS_IN_FLIGHT` (memory: a bright scene lights nearly every state)."""
+        alive = 0 if self.chains is None else self.chains["f"].size
+        return int(min(m, max(0, MAX_CHAINS_IN_FLIGHT - alive)))
+
     def bootstrap_chunk(self, x) -> None:
-        """Trace the uniform states ``x`` (D, m): ``b``'s terms, their lit paths into the pool."""
-        f, pix, rgbn = self.target(x)
-        self._b[0] += float(f.sum())
-        self._b[1] += _dot(f, f)
-        self._b[2] += f.shape[0]
-        lit = np.flatnonzero(f > 0)
-        if lit.size:
-            self.pool.append((np.take(x, lit, axis=1), f[lit], pix[lit], np.take(rgbn, lit, axis=1), lit + self.seen))
-            self.pooled += lit.size
-        self.seen += f.shape[0]
-        while self.pooled >= CHAIN_CHUNK:
-            self._run(CHAIN_CHUNK)
+        """One round: the new uniform states ``x`` (D, m) traced together with every chain's proposal
+        (``m = 0``: the chains' step only)."""
+        self._round(x if x.shape[1] else None)
 
     def finish(self) -> None:
-        """Run the chains left in the pool; every bootstrap state is then done."""
-        while self.pooled:
-            self._run(min(self.pooled, CHAIN_CHUNK))
-        self.done = self.seen
+        """Tail rounds until every cohort has made its ``T`` steps."""
+        while self.cohorts:
+            self._round(None)
 
-    def _take(self, k):
-        parts = [np.concatenate(p, axis=-1) for p in zip(*self.pool)]
-        first = [p[..., :k] for p in parts]
-        rest = [p[..., k:] for p in parts]
-        self.pool = [tuple(rest)] if rest[1].size else []
-        self.pooled -= k
-        return first
-
-    def _run(self, k) -> None:
-        x, f, pix, rgbn, index = self._take(k)
-        chains = _Chains(np.ascontiguousarray(x), f.copy(), pix.copy(), np.ascontiguousarray(rgbn))
-        w = f.copy()
+    def _round(self, x) -> None:
         sigma, p_large = self.mutation
-        film = _Splatter(self.film.n_pix)
-        film.add(chains.pix, chains.rgbn, w)                           # t = 0: the path-traced sample
-        names = ("luminance", "film_x", "film_y")
-        sums = {name: h.copy() for name, h in zip(names, (chains.f, chains.xT[0], chains.xT[1]))}
-        squares = {name: h * h for name, h in sums.items()}
-        n_acc = 0
-        for _ in range(self.n_steps):
-            prop = chains.propose(self.target, sigma, p_large, self.rng)
-            film.add(chains.pix, chains.rgbn, w * (1.0 - prop.a))
-            film.add(prop.pix, prop.rgbn, w * prop.a)
-            chains.move(prop)
-            for name, h in zip(names, (chains.f, chains.xT[0], chains.xT[1])):
-                sums[name] += h
-                squares[name] += h * h
-            n_acc += int(prop.accept.sum())
-        # the chains are whole: add them (an interrupt above leaves the film as it was)
-        self.film.film += film.film
-        for name in names:
-            self.moments.add(name, w, sums[name], squares[name], self.n_steps + 1)
-        self.n_acc += n_acc
-        self.n_chains += k
-        self.done = int(index[-1]) + 1
+        ch = self.chains
+        m = 0 if x is None else x.shape[1]
+        y = None if ch is None else _mutate_soa(ch["x"], sigma, p_large, self.rng)[0]
+        parts = [p for p in (x, y) if p is not None]
+        if not parts:                                          # cohorts without a lit state: nothing to trace
+            f = pix = rgbn = None
+        else:
+            f, pix, rgbn = self.target(parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1))
+        local = np.zeros(3 * self.film.n_pix)
+        terms = 0
+        if self.cohorts:                                       # the chains' step
+            terms += sum(c[0] for c in self.cohorts)           # every state in flight, lit or not
+            for c in self.cohorts:
+                c[2] += 1
+        if ch is not None:
+            fy, py, ry = f[m:], pix[m:], rgbn[:, m:]
+            a = np.minimum(1.0, fy / ch["f"])
+            self.film.add_into(local, ch["pix"], ch["rgbn"], ch["w"] * (1.0 - a))
+            self.film.add_into(local, py, ry, ch["w"] * a)
+            acc = self.rng.random(a.shape[0]) < a
+            for key, new in (("x", y), ("f", fy), ("pix", py), ("rgbn", ry)):
+                np.copyto(ch[key], new, where=acc)
+            for name, h in zip(self._NAMES, (ch["f"], ch["x"][0], ch["x"][1])):
+                ch["sum_" + name] += h
+                ch["sq_" + name] += h * h
+            self.n_acc += int(acc.sum())
+            self.n_moves += a.shape[0]
+        new = None
+        if x is not None:                                      # t = 0; lit states start chains
+            f0 = f[:m]
+            self._b[0] += float(f0.sum())
+            self._b[1] += _dot(f0, f0)
+            self._b[2] += m
+            lit = np.flatnonzero(f0 > 0)
+            self.film.add_into(local, pix[lit], rgbn[:, lit], f0[lit])
+            terms += m
+            self.n_chains += lit.size
+            if self.n_steps and lit.size:
+                h0 = (f0[lit], x[0, lit], x[1, lit])
+                new = {"x": np.take(x, lit, axis=1), "f": f0[lit].copy(), "pix": pix[lit],
+                       "rgbn": np.take(rgbn[:, :m], lit, axis=1), "w": f0[lit].copy()}
+                for name, h in zip(self._NAMES, h0):
+                    new["sum_" + name] = h.copy()
+                    new["sq_" + name] = h * h
+        # the round is finished: film, D and the chains change together
+        self.film.film += local
+        self.terms += terms
+        if self.cohorts and self.cohorts[0][2] == self.n_steps:  # the oldest cohort has made its T steps
+            _, k, _ = self.cohorts.pop(0)
+            if k:
+                for name in self._NAMES:
+                    self.moments.add(name, ch["w"][:k], ch["sum_" + name][:k], ch["sq_" + name][:k],
+                                     self.n_steps + 1)
+                ch = {key: v[..., k:] for key, v in ch.items()}
+        if x is not None and self.n_steps:
+            self.cohorts.append([m, 0 if new is None else new["f"].size, 0])
+            if new is not None:
+                ch = new if ch is None or ch["f"].size == 0 else \
+                    {key: np.concatenate([ch[key], new[key]], axis=-1) for key in self._KEYS}
+        self.chains = ch if ch is not None and ch["f"].size else None
 
     def image_sum(self, n_pix: int) -> np.ndarray:
-        """``sum`` with ``sum / spp`` the image, ``spp = done / n_pix``: ``I_j = n_pix / (n_b (T + 1)) Σ``."""
+        """``sum`` with ``sum / spp`` the image, ``spp = D / ((T + 1) n_pix)``: ``I = n_pix / D Σ``."""
         return (self.film.film.reshape(3, n_pix) / (self.n_steps + 1)).T.copy()
 
     def b(self):
@@ -549,19 +600,22 @@ def _weighted_film(target, dim: int, res, per_pixel: int, opts: "PssmltSettings"
     run = _WeightedRun(n_pix, opts.chain_length, target, (opts.sigma, opts.p_large), rng)
     interrupted = False
     try:
-        for a in range(0, n_b, BOOTSTRAP_CHUNK):
-            run.bootstrap_chunk(_stratified_states(res, per_pixel, a, min(BOOTSTRAP_CHUNK, n_b - a), dim, rng))
+        a = 0
+        while a < n_b:
+            m = run.births_allowed(min(BOOTSTRAP_CHUNK, n_b - a))
+            run.bootstrap_chunk(_stratified_states(res, per_pixel, a, m, dim, rng))
+            a += m
         run.finish()
     except KeyboardInterrupt:
-        if run.done == 0:
+        if run.terms == 0:
             raise
         interrupted = True
     b, b_se, b_n = run.b()
     tau = run.moments.tau(opts.chain_length + 1)
     n_states = run.n_chains * (opts.chain_length + 1)
     ess = {name: n_states / t if t > 0 else float("nan") for name, t in tau.items()}
-    return PssmltFilm(sum=run.image_sum(n_pix), spp=run.done / n_pix, rays=target.rays, b=b, b_stderr=b_se,
-                      acceptance_rate=run.n_acc / max(run.n_chains * opts.chain_length, 1),
+    return PssmltFilm(sum=run.image_sum(n_pix), spp=run.spp(n_pix), rays=target.rays, b=b, b_stderr=b_se,
+                      acceptance_rate=run.n_acc / max(run.n_moves, 1),
                       interrupted=interrupted, chains=run.n_chains, n_steps=opts.chain_length, n_bootstrap=n_b,
                       n_b=b_n, tau=tau, ess=ess)
 
@@ -678,7 +732,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     dim = state_dim(opts.state_depth, opts.max_depth)
     n_mut = max(1, int(round(spp * n_pix)))
     if opts.start == "weighted":
-        _check_memory(dim, CHAIN_CHUNK, 2 * CHAIN_CHUNK, opts.state_depth, chains_kept=0)
+        _check_weighted_memory(dim, opts.state_depth)
         tracer = tracer if tracer is not None else Tracer(scene)
         target = _PathTarget(scene, res, tracer, PathSettings(max_depth=opts.max_depth, heuristic=opts.heuristic),
                              rng)
@@ -734,16 +788,21 @@ def run_batch(job: BatchJob) -> BatchResult:
     return BatchResult(sum=run.sum * (job.spp / run.spp), sum_sq=None, rays=run.rays, extra=extra)
 
 
-def _check_memory(dim: int, chains: int, n_bootstrap, state_depth, chains_kept=None) -> None:
+def _check_memory(dim: int, chains: int, n_bootstrap, state_depth) -> None:
     """The run's memory against the budget before anything is traced: the bootstrap's candidates and
-    one chunk's step (:func:`mcvar.mcmc.check_walk_budget`), and every chain's bookkeeping
-    (``chains_kept``, default ``chains``)."""
+    one chunk's step (:func:`mcvar.mcmc.check_walk_budget`), and every chain's bookkeeping."""
     check_walk_budget(dim, min(chains, CHAIN_CHUNK), n_bootstrap, payload_words=4, dim_name="state_depth",
                       dim_value=state_depth)
-    kept = chains if chains_kept is None else chains_kept
-    check_budget(f"chains={chains!r} with state_depth={state_depth!r}", None, kept * float(BYTES_PER_CHAIN),
+    check_budget(f"chains={chains!r} with state_depth={state_depth!r}", None, chains * float(BYTES_PER_CHAIN),
                  per_unit=BYTES_PER_CHAIN, unit_name="chains",
-                 what=f"the bootstrap picks and diagnostics of {kept} chains")
+                 what=f"the bootstrap picks and diagnostics of {chains} chains")
+
+
+def _check_weighted_memory(dim: int, state_depth) -> None:
+    """``start='weighted'``: one round's wavefront (the chains in flight and a bootstrap chunk) and
+    the chains' sums (six numbers each) against the budget."""
+    check_walk_budget(dim, MAX_CHAINS_IN_FLIGHT + BOOTSTRAP_CHUNK, None, payload_words=4 + 7,
+                      dim_name="state_depth", dim_value=state_depth)
 
 
 def _check_start(start, chain_length, n_bootstrap, bootstrap) -> None:
@@ -769,6 +828,9 @@ def _check_options(scene, options) -> None:
     check_bool(options["bootstrap"], "bootstrap")
     _check_start(options["start"], options["chain_length"], options["n_bootstrap"], options["bootstrap"])
     dim = state_dim(check_count(options["state_depth"], "state_depth"))
+    if options["start"] == "weighted":
+        _check_weighted_memory(dim, options["state_depth"])
+        return
     n_bootstrap = None if options["n_bootstrap"] is None else check_count(options["n_bootstrap"], "n_bootstrap")
     _check_memory(dim, chains, n_bootstrap, options["state_depth"])
 
