@@ -13,6 +13,13 @@ luminance of the image estimated from the run's independent uniform states
 Each batch of a render is an independent PSSMLT run (its own bootstrap and
 chains), so the film's variance comes from independent batches.
 
+Two ways to start the chains (``start``): ``'resample'`` (the default,
+Kelemen / pbrt: chains start at bootstrap paths resampled ``∝ f`` and the
+image is scaled by ``b``) and ``'weighted'`` (Veach and Guibas [4]_: the
+bootstrap *is* path tracing over the film, stratified per pixel, and every
+lit bootstrap path starts one chain of ``chain_length`` steps that carries
+the weight ``f(x_0)``; no ``b``, exactly unbiased for any chain length).
+
 State
 -----
 ``u[0:2]``: the film position over the **whole image** (x = column left to
@@ -34,6 +41,12 @@ References
    3rd ed. section 16.4, 4th ed. section 13.4 (``MLTIntegrator``).
 .. [3] E. Veach, "Robust Monte Carlo Methods for Light Transport
    Simulation", PhD thesis, Stanford 1997, chapter 11.
+.. [4] E. Veach, L. J. Guibas, "Metropolis Light Transport", SIGGRAPH 1997,
+   section 5.1 (eliminating start-up bias: a start ``x_0 ~ p_0`` weighted by
+   ``f(x_0) / p_0(x_0)``).
+.. [5] D. Cline, J. Talbot, P. Egbert, "Energy Redistribution Path Tracing",
+   SIGGRAPH 2005 (chains started at path-traced samples spread their energy
+   over nearby paths).
 """
 from __future__ import annotations
 
@@ -61,7 +74,7 @@ __all__ = ["CHAIN_CHUNK", "OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_fil
 #: chain-count trade); ``n_bootstrap=None``: ``max(4 * chains, mutations // 4)``
 #: paths; ``state_depth``: path segments whose numbers are in the chain's state.
 OPTIONS = {"chains": 1 << 16, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None,
-           "bootstrap": True, "splat": "expected", "state_depth": 6, "start": "resample", "chain_length": 8}
+           "bootstrap": True, "splat": "expected", "state_depth": 6, "start": "resample", "chain_length": 16}
 
 #: The ways a run starts its chains (:func:`pssmlt_film`, ``start``).
 STARTS = ("resample", "weighted")
@@ -446,7 +459,7 @@ class _WeightedMoments:
 
 class _WeightedRun:
     """A run with ``start='weighted'``: every bootstrap path that carries light starts one chain
-    of ``T`` steps, weighted by its ``f`` (Veach 1997 section 11.3.4; Cline et al. 2005).
+    of ``T`` steps, weighted by its ``f`` (Veach and Guibas 1997 [4]_, section 5.1; Cline et al. 2005 [5]_).
 
     **One wavefront per round.** Each round traces a bootstrap chunk's new uniform states and
     the proposals of every chain in flight *in one call of the target*, so the chains' steps
@@ -673,6 +686,18 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     state_depth : int
         Path segments whose random numbers are in the state (see the module
         docstring); dimensions beyond are fresh iid.
+    start : {'resample', 'weighted'}
+        ``'resample'``: the chains above. ``'weighted'``: ``spp`` is the
+        bootstrap's paths per pixel (rounded up), stratified (each pixel
+        its own ``spp`` uniform states, pixel-major: coherent rays as in path
+        tracing); every bootstrap path with ``f > 0`` starts a chain of
+        ``chain_length`` steps weighted by ``f(x_0)`` (see Notes); the chains'
+        steps are traced in the same wavefronts as the bootstrap's next
+        paths. ``chains`` and ``n_bootstrap`` do not apply (``n_bootstrap``
+        must be None, ``bootstrap`` True); ``rays`` tells the work done.
+    chain_length : int
+        ``start='weighted'``: steps per chain, >= 0 (0: path tracing over
+        the whole film).
 
     Returns
     -------
@@ -708,6 +733,20 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     length is cut off: the estimate stays consistent (Russian roulette
     included). With ``max_depth <= state_depth`` every path is a pure
     function of the state.
+
+    **Weighted start** (``start='weighted'``; Veach and Guibas 1997, 5.1).
+    If ``K`` is a Metropolis step that keeps ``f`` invariant (``∫ f(x) K(x,
+    y) dx = f(y)``: Kelemen's symmetric mutation with the acceptance above,
+    large steps or not) and ``x_0`` is uniform, then ``E[f(x_0) h(x_t)] =
+    ∫ f K^t h = ∫ f h`` for every ``t``: no stationary start, no ``b``,
+    no ergodicity needed (the fresh starts explore). With ``h = n_pix 1_j c /
+    f`` and ``T = chain_length``,
+
+        I_j ≈ n_pix / (n_b (T + 1)) Σ_k f(x_k0) Σ_{t=0..T} 1_j(x_kt) c(x_kt) / f(x_kt)
+
+    (each step's term expected-value splatted); unlit starts contribute
+    nothing and are not chained. ``T = 0`` is path tracing; longer chains
+    spread a found path's energy over its neighbours.
 
     **Diagnostics.** The chains start (nearly) in the stationary
     distribution and are independent given the bootstrap, so the variance
