@@ -50,7 +50,7 @@ References
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -72,12 +72,18 @@ __all__ = ["CHAIN_CHUNK", "OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_fil
 #: (:data:`CHAIN_CHUNK`), so a step traces as many paths per bounce as a
 #: path-tracing batch (docs/mcmc.md, 'Many chains in lockstep', for the
 #: chain-count trade); ``n_bootstrap=None``: ``max(4 * chains, mutations // 4)``
-#: paths; ``state_depth``: path segments whose numbers are in the chain's state.
-OPTIONS = {"chains": 1 << 16, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None,
+#: paths; ``state_depth``: path segments whose numbers are in the chain's state;
+#: ``p_large=None``: :data:`P_LARGE` of the ``start``.
+OPTIONS = {"chains": 1 << 16, "sigma": 0.01, "p_large": None, "n_bootstrap": None,
            "bootstrap": True, "splat": "expected", "state_depth": 6, "start": "resample", "chain_length": 16}
 
 #: The ways a run starts its chains (:func:`pssmlt_film`, ``start``).
 STARTS = ("resample", "weighted")
+
+#: ``p_large`` when not given, per ``start``: pbrt-v4's 0.3 for resampled chains (their only way
+#: between bright regions); 0 for weighted chains, whose fresh starts explore (measured on
+#: cornell-door, chain_length 16: 1.43x path tracing's CPU efficiency at 0 against 0.82 at 0.3).
+P_LARGE = {"resample": 0.3, "weighted": 0.0}
 
 #: Bytes a chain keeps outside its chunk's step: its bootstrap pick and the
 #: per-chain means of the diagnostics' observables.
@@ -320,7 +326,7 @@ class PssmltSettings:
     heuristic: str = "power"
     chains: int = OPTIONS["chains"]
     sigma: float = OPTIONS["sigma"]
-    p_large: float = OPTIONS["p_large"]
+    p_large: float | None = OPTIONS["p_large"]
     n_bootstrap: int | None = OPTIONS["n_bootstrap"]
     bootstrap: bool = OPTIONS["bootstrap"]
     splat: str = OPTIONS["splat"]
@@ -661,8 +667,9 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         rejects; then the next chunk, from the same bootstrap.
     sigma : float
         Kelemen's small-step size (:func:`mcvar.mcmc.metropolis`).
-    p_large : float
-        Probability of a large step (a fresh uniform state).
+    p_large : float or None
+        Probability of a large step (a fresh uniform state); None:
+        :data:`P_LARGE` of ``start`` (0.3 resampled, 0 weighted).
     n_bootstrap : int or None
         Independent paths that estimate ``b`` and seed the chains, shared by
         all chunks; None: ``max(4 * chains, N // 4)`` for ``N``
@@ -764,10 +771,11 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         raise ValueError(f"spp must be finite and > 0; got {spp}")
     chains = check_count(opts.chains, "chains")
     sigma = check_positive(opts.sigma, "sigma")
-    p_large = check_probability(opts.p_large, "p_large")
     check_choice(opts.splat, "splat", ("expected", "plain"))
     check_bool(opts.bootstrap, "bootstrap")
     _check_start(opts.start, opts.chain_length, opts.n_bootstrap, opts.bootstrap)
+    p_large = P_LARGE[opts.start] if opts.p_large is None else check_probability(opts.p_large, "p_large")
+    opts = replace(opts, p_large=p_large)
     dim = state_dim(opts.state_depth, opts.max_depth)
     n_mut = max(1, int(round(spp * n_pix)))
     if opts.start == "weighted":
@@ -862,7 +870,8 @@ def _check_options(scene, options) -> None:
     chains' and a given ``n_bootstrap``'s memory against the budget."""
     chains = check_count(options["chains"], "chains")
     check_positive(options["sigma"], "sigma")
-    check_probability(options["p_large"], "p_large")
+    if options["p_large"] is not None:
+        check_probability(options["p_large"], "p_large")
     check_choice(options["splat"], "splat", ("expected", "plain"))
     check_bool(options["bootstrap"], "bootstrap")
     _check_start(options["start"], options["chain_length"], options["n_bootstrap"], options["bootstrap"])
