@@ -36,7 +36,7 @@ import numpy as np
 from mcvar.integrators import render
 from mcvar.scene import load_scene
 
-DEFAULT_METHODS = ("path", "pssmlt", "pssmlt:batch=whole", "pssmlt:chains=4096,batch=whole")
+DEFAULT_METHODS = ("path", "pssmlt", "pssmlt:start=weighted,batch=1024", "pssmlt:start=weighted,chain_length=32,batch=1024")
 TRADE_CHAINS = (4096, 16384, 65536)
 TRADE_SIGMAS = (0.003, 0.01, 0.03, 0.1)
 

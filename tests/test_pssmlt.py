@@ -351,3 +351,33 @@ def test_weighted_agrees_with_mitsuba(recipe, depth):
     mitsuba.assert_agrees(images, mitsuba._case_name(recipe, depth),
                           f"pssmlt start='weighted' max_depth={depth} (8 x 64 spp) on {recipe}",
                           mitsuba.region_of(recipe))
+
+
+def test_weighted_run_interrupted_keeps_the_finished_rounds():
+    """Ctrl-C in the 6th round (the target raises) keeps the 5 finished rounds: interrupted, spp is
+    their share of the bootstrap, the film is finite; Ctrl-C in the first round is re-raised."""
+    from mcvar.integrators.pssmlt import PssmltSettings, _weighted_film
+
+    class Stop:
+        def __init__(self, after):
+            self.calls, self.after, self.rays = 0, after, 0
+
+        def __call__(self, yT):
+            self.calls += 1
+            if self.calls > self.after:
+                raise KeyboardInterrupt
+            return _cell_target(yT)
+
+    opts = PssmltSettings(start="weighted", chain_length=3, p_large=0.0)
+    old = pssmlt_module.WEIGHTED_ROUND
+    try:
+        pssmlt_module.WEIGHTED_ROUND = 360
+        run = _weighted_film(Stop(5), chain_balance.DIM, (6, 6), 100, opts, np.random.default_rng(1))
+        assert run.interrupted and 0 < run.spp < 100 and np.all(np.isfinite(run.sum))
+        # D: each of the 5 rounds' 360 new states (t = 0), plus the states of the cohorts born in
+        # the 3 rounds before (0, 1, 2, 3, 3 cohorts): 1800 + 3240 terms, spp = D / ((T + 1) n_pix)
+        assert run.spp == (5 * 360 + 360 * (0 + 1 + 2 + 3 + 3)) / (4 * 36)
+        with pytest.raises(KeyboardInterrupt):
+            _weighted_film(Stop(0), chain_balance.DIM, (6, 6), 100, opts, np.random.default_rng(1))
+    finally:
+        pssmlt_module.WEIGHTED_ROUND = old

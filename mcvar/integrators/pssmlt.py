@@ -95,6 +95,10 @@ _LUM = np.asarray(LUMINANCE_WEIGHTS)
 #: the chains fill this): a round's wavefront is at most this plus a bootstrap chunk.
 MAX_CHAINS_IN_FLIGHT = 1 << 17
 
+#: ``start='weighted'``: new bootstrap states per round (each round also steps every chain in
+#: flight, so a run ends with ``chain_length`` rounds that step only the last chains).
+WEIGHTED_ROUND = BOOTSTRAP_CHUNK
+
 #: Chains stepped in lockstep at once: one wavefront of at most this many
 #: paths per bounce (the path tracer's batch,
 #: :data:`mcvar.integrators.allocation.PATHS_PER_BATCH`), so a
@@ -621,7 +625,7 @@ def _weighted_film(target, dim: int, res, per_pixel: int, opts: "PssmltSettings"
     try:
         a = 0
         while a < n_b:
-            m = run.births_allowed(min(BOOTSTRAP_CHUNK, n_b - a))
+            m = run.births_allowed(min(WEIGHTED_ROUND, n_b - a))
             run.bootstrap_chunk(_stratified_states(res, per_pixel, a, m, dim, rng))
             a += m
         run.finish()
