@@ -381,3 +381,13 @@ def test_weighted_run_interrupted_keeps_the_finished_rounds():
             _weighted_film(Stop(0), chain_balance.DIM, (6, 6), 100, opts, np.random.default_rng(1))
     finally:
         pssmlt_module.WEIGHTED_ROUND = old
+
+
+def test_weighted_run_without_light_is_black():
+    """A closed door: no bootstrap path carries light. Resampling cannot start (ValueError); the
+    weighted estimate is path tracing's, zero, with NaN chain diagnostics (no chain ran)."""
+    dark = load_scene("cornell-door", slit=1e-6)
+    r = render_pssmlt(dark, spp=2, res=4, rng=0, start="weighted")
+    assert r.spp == 2 and np.count_nonzero(r.image) == 0 and np.isnan(r.extra["tau"]).all()
+    run = pssmlt_film(dark, (4, 4), 2, rng=0, start="weighted")
+    assert run.chains == 0 and run.b == 0.0 and run.acceptance_rate == 0.0

@@ -456,7 +456,8 @@ class _WeightedMoments:
         s[6] += w.shape[0]
 
     def tau(self, n_states: int) -> dict:
-        out = {}
+        """Per observable (NaN for all three when no chain has finished: no light found)."""
+        out = {name: float("nan") for name in _WeightedRun._NAMES}
         for name, (wm, wm2, wh, wh2, sw, sw2, n) in self.parts.items():
             ok = n > 1 and sw > 0
             mu = wm / sw if ok else 0.0
