@@ -91,12 +91,13 @@ BYTES_PER_CHAIN = 8 * 4
 
 _LUM = np.asarray(LUMINANCE_WEIGHTS)
 
-#: ``start='weighted'``: chains in flight at most (each round's new bootstrap states wait while
-#: the chains fill this): a round's wavefront is at most this plus a bootstrap chunk.
+#: ``start='weighted'``: chains in flight before a round adds no new bootstrap states (it then
+#: only steps the chains): a round's wavefront is at most this plus one round's new states.
 MAX_CHAINS_IN_FLIGHT = 1 << 17
 
-#: ``start='weighted'``: new bootstrap states per round (each round also steps every chain in
-#: flight, so a run ends with ``chain_length`` rounds that step only the last chains).
+#: ``start='weighted'``: new bootstrap states per round, rounded down to whole scanline passes
+#: (at least one; each round also steps every chain in flight, so a run ends with
+#: ``chain_length`` rounds that step only the last chains).
 WEIGHTED_ROUND = BOOTSTRAP_CHUNK
 
 #: Chains stepped in lockstep at once: one wavefront of at most this many
@@ -482,8 +483,10 @@ class _WeightedRun:
     **Normalisation.** Every term ``f(x_0) h(x_t)`` (the start at ``t = 0``, each step's
     expected-value splat) has expectation ``∫ f h`` whatever ``t``; ``D`` counts the terms of
     every bootstrap state, lit or not, once per round it is in flight, and the image is
-    ``n_pix / D Σ splats``: ``D = n_b (T + 1)`` at the end; an interrupted run counts the rounds
-    it finished (the schedule does not depend on the paths, so the estimate stays unbiased).
+    ``n_pix / D Σ splats``: ``D = n_b (T + 1)`` at the end. An interrupted run counts the rounds
+    it finished; as every round's new states are whole scanline passes (one state per pixel
+    each), every pixel's strata are equally represented in each cohort, and the schedule does
+    not depend on the paths, so that estimate is unbiased too.
     """
 
     _NAMES = ("luminance", "film_x", "film_y")
@@ -508,10 +511,12 @@ class _WeightedRun:
         return self.terms / ((self.n_steps + 1) * n_pix)
 
     def births_allowed(self, m: int) -> int:
-        """New states the next round may add: ``m``, fewer once the chains in flight reach
-        :data:`MAX_CHAINS_IN_FLIGHT` (memory: a bright scene lights nearly every state)."""
+        """New states the next round may add: ``m``, or 0 (a round that only steps the chains)
+        while the chains in flight are :data:`MAX_CHAINS_IN_FLIGHT` or more (memory: a bright
+        scene lights nearly every state). All or nothing, so that every round is whole
+        scanline passes."""
         alive = 0 if self.chains is None else self.chains["f"].size
-        return int(min(m, max(0, MAX_CHAINS_IN_FLIGHT - alive)))
+        return m if alive < MAX_CHAINS_IN_FLIGHT else 0
 
     def bootstrap_chunk(self, x) -> None:
         """One round: the new uniform states ``x`` (D, m) traced together with every chain's proposal
@@ -596,19 +601,20 @@ class _WeightedRun:
         return b, float(np.sqrt(max(sq / max(n, 1) - b * b, 0.0) / max(n - 1, 1))), n
 
 
-def _stratified_states(res, per_pixel: int, first: int, m: int, dim: int, rng) -> np.ndarray:
-    """States ``first .. first + m - 1`` of a pixel-major stratified bootstrap, ``(dim, m)``.
+def _stratified_states(res, first: int, m: int, dim: int, rng) -> np.ndarray:
+    """States ``first .. first + m - 1`` of a stratified bootstrap in scanline order, ``(dim, m)``.
 
-    Start ``k`` lies in pixel ``k // per_pixel`` (row-major), uniform inside it, and every other
-    number is uniform: each pixel holds ``per_pixel`` uniform states of its own stratum, so
-    ``n_pix / n_b Σ g(x_k)`` is an unbiased (stratified) estimate of ``n_pix ∫ g``. Neighbouring
-    starts share a pixel, so the wavefront's rays are coherent, as in path tracing (measured
-    on cornell-door: states uniform over the image traced 2x slower, through the tracer's
-    masks).
+    Start ``k`` lies in pixel ``k mod n_pix`` (row-major), uniform inside it, and every other
+    number is uniform: ``n_pix`` consecutive starts hold one state of every pixel, so a bootstrap
+    of ``spp * n_pix`` states gives each pixel ``spp`` uniform states of its own stratum and
+    ``n_pix / n_b Σ g(x_k)`` is an unbiased (stratified) estimate of ``n_pix ∫ g``; so is any run
+    of whole scanline passes (the rounds of :func:`_weighted_film`). Neighbouring starts are
+    neighbouring pixels, so the wavefront's rays are coherent, as in path tracing (measured on
+    cornell-door: states uniform over the image traced 2x slower, through the tracer's masks).
     """
     width, height = res
     x = rng.random((dim, m))
-    pix = (first + np.arange(m)) // per_pixel
+    pix = (first + np.arange(m)) % (width * height)
     x[0] += pix % width
     x[0] *= 1.0 / width
     x[1] += pix // width
@@ -623,11 +629,12 @@ def _weighted_film(target, dim: int, res, per_pixel: int, opts: "PssmltSettings"
     n_b = per_pixel * n_pix
     run = _WeightedRun(n_pix, opts.chain_length, target, (opts.sigma, opts.p_large), rng)
     interrupted = False
+    passes = max(1, WEIGHTED_ROUND // n_pix)            # whole scanline passes per round
     try:
         a = 0
         while a < n_b:
-            m = run.births_allowed(min(WEIGHTED_ROUND, n_b - a))
-            run.bootstrap_chunk(_stratified_states(res, per_pixel, a, m, dim, rng))
+            m = run.births_allowed(min(passes * n_pix, n_b - a))
+            run.bootstrap_chunk(_stratified_states(res, a, m, dim, rng))
             a += m
         run.finish()
     except KeyboardInterrupt:
@@ -701,8 +708,8 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     start : {'resample', 'weighted'}
         ``'resample'``: the chains above. ``'weighted'``: ``spp`` is the
         bootstrap's paths per pixel (rounded up), stratified (each pixel
-        its own ``spp`` uniform states, pixel-major: coherent rays as in path
-        tracing); every bootstrap path with ``f > 0`` starts a chain of
+        its own ``spp`` uniform states, in scanline order: coherent rays as
+        in path tracing); every bootstrap path with ``f > 0`` starts a chain of
         ``chain_length`` steps weighted by ``f(x_0)`` (see Notes); the chains'
         steps are traced in the same wavefronts as the bootstrap's next
         paths. ``chains`` and ``n_bootstrap`` do not apply (``n_bootstrap``
