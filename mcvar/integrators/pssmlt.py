@@ -75,7 +75,7 @@ __all__ = ["CHAIN_CHUNK", "OPTIONS", "PssmltFilm", "PssmltSettings", "pssmlt_fil
 #: paths; ``state_depth``: path segments whose numbers are in the chain's state;
 #: ``p_large=None``: :data:`P_LARGE` of the ``start``.
 OPTIONS = {"chains": 1 << 16, "sigma": 0.01, "p_large": None, "n_bootstrap": None,
-           "bootstrap": True, "splat": "expected", "state_depth": 6, "start": "resample", "chain_length": 16}
+           "bootstrap": True, "splat": "expected", "state_depth": 6, "start": "resample", "chain_length": 8}
 
 #: The ways a run starts its chains (:func:`pssmlt_film`, ``start``).
 STARTS = ("resample", "weighted")
