@@ -9,12 +9,15 @@ high-spp path-traced reference (``--ref-spp``, cached on disk in
 ``--cache-dir`` keyed by scene, resolution, spp and seed; its own noise per
 pixel, from its independent chunks, is subtracted). Reported per method:
 median time, median MSE (MSE is heavy-tailed: fireflies), and the
-efficiency ``1 / (median MSE x median time)`` relative to path tracing's.
+efficiency ``1 / (median MSE x median time)`` relative to path tracing's;
+also with the process's CPU time instead of the wall time (steadier on a
+shared machine, where other processes take the cores).
 
 A method is ``path`` or ``pssmlt`` with options, written
-``pssmlt:chains=4096,sigma=0.03,batch=whole``: ``batch=whole`` renders all
-spp as one PSSMLT run (``batch_spp=spp``: one bootstrap, chains as long as
-the whole render) instead of the driver's batches of 2^16 mutations.
+``pssmlt:chains=4096,sigma=0.03,batch=whole`` or ``pssmlt:start=weighted,batch=1024``:
+``batch=whole`` renders all spp as one PSSMLT run (``batch_spp=spp``: one
+bootstrap, chains as long as the whole render) instead of the driver's
+batches of 2^16 mutations; ``batch=N``: batches of at most N spp.
 ``--trade`` measures the chain-count x mutation-size table of
 docs/mcmc.md. Timings are wall clock on whatever machine runs this: the load
 average is printed before and after; on a shared machine compare ratios
@@ -33,7 +36,7 @@ import numpy as np
 from mcvar.integrators import render
 from mcvar.scene import load_scene
 
-DEFAULT_METHODS = ("path", "pssmlt", "pssmlt:batch=whole", "pssmlt:chains=4096,batch=whole")
+DEFAULT_METHODS = ("path", "pssmlt", "pssmlt:start=weighted,batch=1024", "pssmlt:start=weighted,chain_length=32,batch=1024")
 TRADE_CHAINS = (4096, 16384, 65536)
 TRADE_SIGMAS = (0.003, 0.01, 0.03, 0.1)
 
@@ -62,26 +65,45 @@ def parse_method(spec: str):
     for item in filter(None, rest.split(",")):
         key, _, value = item.partition("=")
         if key == "batch":
-            whole = value == "whole"
+            whole = True if value == "whole" else int(value)
         else:
-            options[key] = float(value) if "." in value else int(value)
+            options[key] = _value(value)
     return name, options, whole
+
+
+def _value(text: str):
+    """An option's value: int, float or (``start=weighted``) the string itself."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def run(scene, spec: str, spp: int, res: int, rng):
     name, options, whole = parse_method(spec)
-    kw = dict(batch_spp=spp) if whole else {}
+    if whole is True:
+        kw = dict(batch_spp=spp)
+    elif whole:                            # batch=N: N spp per batch at most
+        kw = dict(batch_spp=min(spp, whole))
+    else:
+        kw = {}
     return render(scene, integrator=name, spp=spp, res=res, rng=rng, progress=False, **options, **kw)
 
 
 def calibrate(scene, spec: str, res: int, seconds: float) -> int:
-    """The spp that takes about ``seconds`` (from a run of about a tenth of it)."""
+    """The spp that takes about ``seconds``: from a run of about a tenth of it, then corrected by
+    one run at that estimate (a run's fixed cost, e.g. ``start=weighted``'s chain steps, makes
+    the first extrapolation short)."""
     spp = 4
     while True:
         t = run(scene, spec, spp, res, 12345).seconds
         if t > 0.1 * seconds or spp >= 1 << 16:
             break
         spp *= 2
+    spp = max(1, int(round(spp * seconds / t)))
+    t = run(scene, spec, spp, res, 12346).seconds
     return max(1, int(round(spp * seconds / t)))
 
 
@@ -93,29 +115,36 @@ def equal_time(scene_name, methods, *, res, seconds, seeds, ref_spp, cache_dir):
     stats = {m: [] for m in methods}
     for seed in np.random.SeedSequence(2026).spawn(seeds):
         for m in methods:                                   # interleaved
+            cpu = time.process_time()
             r = run(scene, m, spps[m], res, seed)
-            stats[m].append((r.seconds, float(np.mean((r.image - ref) ** 2)) - noise, r.extra))
+            cpu = time.process_time() - cpu
+            stats[m].append((r.seconds, float(np.mean((r.image - ref) ** 2)) - noise, r.extra, cpu))
     rows = []
     for m in methods:
         t = np.median([s[0] for s in stats[m]])
+        cpu = np.median([s[3] for s in stats[m]])
         e = np.array([s[1] for s in stats[m]])
         extra = stats[m][0][2]
         rows.append(dict(method=m, spp=spps[m], seconds=float(t), mse=float(np.median(e)),
                          mse_mean=float(e.mean()), mse_se=float(e.std(ddof=1) / np.sqrt(len(e))) if len(e) > 1 else 0.0,
-                         efficiency=float(1.0 / (np.median(e) * t)),
+                         efficiency=float(1.0 / (np.median(e) * t)), cpu=float(cpu),
+                         cpu_efficiency=float(1.0 / (np.median(e) * cpu)),
                          acceptance=float(np.ravel(extra["acceptance_rate"])[0]) if "acceptance_rate" in extra else None,
                          tau=float(np.ravel(extra["tau"])[0]) if "tau" in extra else None))
     base = next((r["efficiency"] for r in rows if r["method"] == "path"), None)
+    base_cpu = next((r["cpu_efficiency"] for r in rows if r["method"] == "path"), None)
     print(f"\n== {scene_name} {res}x{res}, about {seconds:g} s per render, {seeds} seeds; reference path "
           f"{ref_spp} spp (noise {noise:.2g} subtracted)")
     print(f"{'method':<36} {'spp':>6} {'time s':>7} {'MSE median':>11} {'MSE mean +- SE':>20} "
-          f"{'efficiency':>11} {'vs path':>8} {'accept':>7} {'tau':>6}")
+          f"{'efficiency':>11} {'vs path':>8} {'cpu s':>6} {'vs path (cpu)':>13} {'accept':>7} {'tau':>6}")
     for r in rows:
         rel = r["efficiency"] / base if base else float("nan")
+        rel_cpu = r["cpu_efficiency"] / base_cpu if base_cpu else float("nan")
         acc = "" if r["acceptance"] is None else f"{r['acceptance']:.2f}"
         tau = "" if r["tau"] is None else f"{r['tau']:.1f}"
         print(f"{r['method']:<36} {r['spp']:>6} {r['seconds']:>7.2f} {r['mse']:>11.3g} "
-              f"{r['mse_mean']:>10.3g} +- {r['mse_se']:<7.2g} {r['efficiency']:>11.3g} {rel:>8.3f} {acc:>7} {tau:>6}")
+              f"{r['mse_mean']:>10.3g} +- {r['mse_se']:<7.2g} {r['efficiency']:>11.3g} {rel:>8.3f} {r['cpu']:>6.2f} "
+              f"{rel_cpu:>13.3f} {acc:>7} {tau:>6}")
     return rows
 
 

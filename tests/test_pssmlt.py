@@ -8,12 +8,14 @@ from scipy import stats
 
 from mcvar.envmap import LUMINANCE_WEIGHTS
 from mcvar.integrators import METHODS, render
-from mcvar.integrators.pssmlt import OPTIONS, _Chains, _path_function, pssmlt_film, state_dim
+from mcvar.integrators.pssmlt import (OPTIONS, _Chains, _path_function, _stratified_states, _WeightedRun, pssmlt_film,
+                                       state_dim)
 from mcvar.scene import load_scene
 from mcvar.testing import sidak_significance
 from mcvar.tracer import Tracer
 
 import chain_balance  # tests/chain_balance.py
+import mcvar.integrators.pssmlt as pssmlt_module
 
 
 def render_pssmlt(scene, **kw):
@@ -233,3 +235,199 @@ def test_diagnostics_of_a_run(cornell):
         assert run.ess[name] == pytest.approx(run.chains * run.n_steps / run.tau[name])
     r = render_pssmlt(cornell, spp=8, res=8, rng=3, chains=64)
     assert {"b", "b_stderr", "acceptance_rate", "tau", "ess_fraction"} <= set(r.extra)
+
+
+# -- start='weighted': every lit bootstrap path starts a chain weighted by its f (issue 22) --------
+
+def _cell_target(yT):
+    """The analytic target with the cell of the state as its 'pixel' and colour ``c = f``
+    (``rgb / f = (1, 0, 0)``): a weighted run's film estimates ``n_cells * ∫_cell f``."""
+    u = yT.T
+    f = chain_balance.target(u)
+    rgbn = np.zeros((3, f.shape[0]))
+    rgbn[0] = 1.0
+    return f, chain_balance.cell(u), rgbn
+
+
+def _weighted_cells(n_b, n_steps, sigma, p_large, rng, round_size=1000):
+    n_cells = chain_balance.CELLS ** 2
+    run = _WeightedRun(n_cells, n_steps, _cell_target, (sigma, p_large), rng)
+    a = 0
+    while a < n_b:
+        m = run.births_allowed(min(round_size, n_b - a))
+        run.bootstrap_chunk(rng.random((chain_balance.DIM, m)))
+        a += m
+    run.finish()
+    assert run.done == n_b and run.n_chains == n_b      # f > 0 almost everywhere: every start is a chain
+    return run.image_sum(n_cells)[:, 0] / (n_b / n_cells), run
+
+
+@pytest.mark.parametrize("n_steps,sigma,p_large,cap", [(8, 0.1, 0.0, None), (3, 0.02, 0.3, 1500)])
+def test_weighted_chains_estimate_the_cells_mass_without_bias(n_steps, sigma, p_large, cap, monkeypatch):
+    """Veach's weighted start on f = 4 u0 u1: chains started at uniform states with weight
+    f(x0), T steps of pssmlt's own mutation and acceptance, expected-value splats, the chains'
+    steps traced in the rounds of new states (and, with ``cap``, rounds that wait for chains
+    to retire); the film of each of 36 cells against its exact mass n_cells (b^2 - a^2)(d^2 - c^2):
+    20 independent runs, Student t per cell, Sidak over the 36 cells x 2 cases."""
+    if cap is not None:
+        monkeypatch.setattr(pssmlt_module, "MAX_CHAINS_IN_FLIGHT", cap)
+    rng = np.random.default_rng(2026_12_02 + n_steps)
+    n_cells = chain_balance.CELLS ** 2
+    est = np.array([_weighted_cells(4000, n_steps, sigma, p_large, rng)[0] for _ in range(20)])
+    truth = n_cells * chain_balance.cell_masses()
+    se = est.std(axis=0, ddof=1) / math.sqrt(len(est))
+    t = (est.mean(axis=0) - truth) / se
+    p = 2 * stats.t.sf(np.abs(t), df=len(est) - 1)
+    assert p.min() > sidak_significance(ALPHA, 2 * n_cells), (t, p.min())
+
+
+def test_weighted_run_identities(cornell):
+    """chain_length=0 is path tracing over the stratified bootstrap (the image's mean luminance is
+    b, the mean of f over it); with chains every step deposits luminance f(x0) in all, so the
+    identity holds for any chain length; spp is the bootstrap's paths per pixel."""
+    for n_steps in (0, 5):
+        run = pssmlt_film(cornell, (8, 8), 4, rng=11, start="weighted", chain_length=n_steps)
+        image = run.sum / run.spp
+        assert run.spp == 4 and run.n_bootstrap == run.n_b == 4 * 64 and run.n_steps == n_steps
+        assert (image @ LUM).mean() == pytest.approx(run.b, rel=1e-12)
+        assert 0 < run.chains <= run.n_bootstrap
+    assert 0 < run.acceptance_rate < 1 and run.b_stderr > 0
+    for name in ("luminance", "film_x", "film_y"):
+        assert 0.5 < run.tau[name] < 2 * (n_steps + 1)
+    # the bootstrap is stratified: every pixel has exactly spp starts, in scanline passes
+    states = _stratified_states((8, 8), 0, 8 * 8 * 3, 4, np.random.default_rng(0))
+    col = np.floor(states[0] * 8).astype(int)
+    row = np.floor(states[1] * 8).astype(int)
+    np.testing.assert_array_equal(np.bincount(row * 8 + col, minlength=64), 3)
+    np.testing.assert_array_equal(row * 8 + col, np.arange(64 * 3) % 64)
+
+
+def test_weighted_image_agrees_with_path_tracing_per_block():
+    """cornell-door at 8 x 8, 2 x 2 blocks x 3 channels: the mean of 8 independent weighted
+    renders (32 chain steps from every lit bootstrap path) against path tracing at 4 096 spp,
+    5 combined standard errors, Sidak over the 48 block means at alpha = 1e-3 (the z of 5 is the
+    looser of the two)."""
+    door = load_scene("cornell-door")
+    ref = render(door, spp=4096, res=8, rng=909)
+    runs = [render_pssmlt(door, spp=256, res=8, rng=s, start="weighted", chain_length=32, p_large=0.0,
+                          batch_spp=256).image for s in np.random.SeedSequence(808).spawn(8)]
+    blocks = lambda img: img.reshape(4, 2, 4, 2, 3).mean(axis=(1, 3)).reshape(-1)   # noqa: E731
+    est = np.array([blocks(im) for im in runs])
+    m, se = est.mean(axis=0), est.std(axis=0, ddof=1) / math.sqrt(len(est))
+    ref_se = np.sqrt(blocks(ref.variance / ref.spp) / 4)       # a block's mean of 4 independent pixels
+    z = (m - blocks(ref.image)) / np.hypot(se, ref_se)
+    limit = max(5.0, stats.norm.isf(sidak_significance(ALPHA, z.size) / 2))
+    assert np.all(np.abs(z) < limit), z
+
+
+def test_weighted_options_refused_before_work(cornell):
+    with pytest.raises(ValueError, match="start"):
+        render_pssmlt(cornell, spp=1, res=4, start="uniform")
+    with pytest.raises(ValueError, match="chain_length"):
+        render_pssmlt(cornell, spp=1, res=4, start="weighted", chain_length=-1)
+    with pytest.raises(TypeError, match="chain_length"):
+        render_pssmlt(cornell, spp=1, res=4, start="weighted", chain_length=2.5)
+    with pytest.raises(ValueError, match="n_bootstrap"):
+        render_pssmlt(cornell, spp=1, res=4, start="weighted", n_bootstrap=64)
+    with pytest.raises(ValueError, match="bootstrap=False"):
+        pssmlt_film(cornell, (4, 4), 1, start="weighted", bootstrap=False)
+
+
+def test_weighted_workers_and_seed_give_the_same_image(cornell):
+    kw = dict(integrator="pssmlt", spp=8, res=8, batch_spp=2, start="weighted", chain_length=4, rng=4242)
+    one, two, again = render(cornell, **kw), render(cornell, workers=2, **kw), render(cornell, **kw)
+    np.testing.assert_array_equal(one.image, two.image)
+    np.testing.assert_array_equal(one.image, again.image)
+
+
+@pytest.mark.parametrize("recipe,depth", [("cornell", None), ("cornell", 3), ("cornell-door", 2)])
+def test_weighted_agrees_with_mitsuba(recipe, depth):
+    """start='weighted' against the stored Mitsuba 3 references (tests/test_mitsuba_reference.py's
+    block t-tests, Sidak, and its skewness guard): 8 independent renders of 64 bootstrap paths per
+    pixel, one run each. cornell-door at full depth is heavy-tailed for every camera method
+    (documented there), so the door is compared at max_depth 2 like mmlt."""
+    import test_mitsuba_reference as mitsuba
+    images = mitsuba.mcvar_replicates(recipe, "pssmlt", 64, 8, max_depth=depth, start="weighted", batch_spp=64)
+    mitsuba.assert_agrees(images, mitsuba._case_name(recipe, depth),
+                          f"pssmlt start='weighted' max_depth={depth} (8 x 64 spp) on {recipe}",
+                          mitsuba.region_of(recipe))
+
+
+def test_weighted_run_interrupted_keeps_the_finished_rounds():
+    """Ctrl-C in the 6th round (the target raises) keeps the 5 finished rounds: interrupted, spp is
+    their share of the bootstrap, the film is finite; Ctrl-C in the first round is re-raised."""
+    from mcvar.integrators.pssmlt import PssmltSettings, _weighted_film
+
+    class Stop:
+        def __init__(self, after):
+            self.calls, self.after, self.rays = 0, after, 0
+
+        def __call__(self, yT):
+            self.calls += 1
+            if self.calls > self.after:
+                raise KeyboardInterrupt
+            return _cell_target(yT)
+
+    opts = PssmltSettings(start="weighted", chain_length=3, p_large=0.0)
+    old = pssmlt_module.WEIGHTED_ROUND
+    try:
+        pssmlt_module.WEIGHTED_ROUND = 360                     # 10 scanline passes of 6 x 6 per round
+        run = _weighted_film(Stop(5), chain_balance.DIM, (6, 6), 100, opts, np.random.default_rng(1))
+        assert run.interrupted and 0 < run.spp < 100 and np.all(np.isfinite(run.sum))
+        # D: each of the 5 rounds' 360 new states (t = 0), plus the states of the cohorts born in
+        # the 3 rounds before (0, 1, 2, 3, 3 cohorts): 1800 + 3240 terms, spp = D / ((T + 1) n_pix)
+        assert run.spp == (5 * 360 + 360 * (0 + 1 + 2 + 3 + 3)) / (4 * 36)
+        with pytest.raises(KeyboardInterrupt):
+            _weighted_film(Stop(0), chain_balance.DIM, (6, 6), 100, opts, np.random.default_rng(1))
+    finally:
+        pssmlt_module.WEIGHTED_ROUND = old
+
+
+def test_weighted_run_without_light_is_black():
+    """A closed door: no bootstrap path carries light. Resampling cannot start (ValueError); the
+    weighted estimate is path tracing's, zero, with NaN chain diagnostics (no chain ran)."""
+    dark = load_scene("cornell-door", slit=1e-6)
+    r = render_pssmlt(dark, spp=2, res=4, rng=0, start="weighted")
+    assert r.spp == 2 and np.count_nonzero(r.image) == 0 and np.isnan(r.extra["tau"]).all()
+    run = pssmlt_film(dark, (4, 4), 2, rng=0, start="weighted")
+    assert run.chains == 0 and run.b == 0.0 and run.acceptance_rate == 0.0
+
+
+def test_interrupted_weighted_render_is_unbiased():
+    """Cut every weighted run after 3 of its 8 rounds (a run of 2 scanline passes per round,
+    chain_length 8: the cohorts have made 3, 2 and 1 steps): the image still agrees with path
+    tracing per 2 x 2 block and channel (cornell, 8 x 8, 12 runs, 5 combined SE / Sidak). With
+    rounds that each covered a part of the image instead (pixel-major order) the top rows would
+    carry all of it (tried: the cut render of the first design had 5x the MSE)."""
+    from mcvar.integrators.pssmlt import PssmltSettings, _PathTarget, _weighted_film
+    from mcvar.integrators.settings import PathSettings
+    cornell = load_scene("cornell")
+    ref = render(cornell, spp=2048, res=8, rng=77)
+    old = pssmlt_module.WEIGHTED_ROUND
+    images = []
+    try:
+        pssmlt_module.WEIGHTED_ROUND = 128                      # 2 passes of 8 x 8 per round
+        for seed in np.random.SeedSequence(1234).spawn(12):
+            rng = np.random.default_rng(seed)
+            target = _PathTarget(cornell, (8, 8), Tracer(cornell), PathSettings(), rng)
+            calls = [0]
+
+            def cut(yT, target=target, calls=calls):
+                calls[0] += 1
+                if calls[0] > 3:
+                    raise KeyboardInterrupt
+                return target(yT)
+            cut.rays = 0
+            run = _weighted_film(cut, state_dim(6), (8, 8), 16, PssmltSettings(start="weighted", chain_length=8,
+                                                                                 p_large=0.0), rng)
+            assert run.interrupted and run.spp == (3 * 128 + 128 * (0 + 1 + 2)) / (9 * 64)
+            images.append((run.sum / run.spp).reshape(8, 8, 3))
+    finally:
+        pssmlt_module.WEIGHTED_ROUND = old
+    blocks = lambda img: img.reshape(4, 2, 4, 2, 3).mean(axis=(1, 3)).reshape(-1)   # noqa: E731
+    est = np.array([blocks(im) for im in images])
+    m, se = est.mean(axis=0), est.std(axis=0, ddof=1) / math.sqrt(len(est))
+    ref_se = np.sqrt(blocks(ref.variance / ref.spp) / 4)
+    z = (m - blocks(ref.image)) / np.hypot(se, ref_se)
+    limit = max(5.0, stats.norm.isf(sidak_significance(ALPHA, z.size) / 2))
+    assert np.all(np.abs(z) < limit), z
