@@ -44,7 +44,7 @@ from .stream import WHOLE_SET_FLOATS, whole_dims, whole_pattern
 
 __all__ = ["Uniform", "Adaptive", "AdaptiveRender", "allocate", "get_allocation", "ALLOCATIONS",
            "PATHS_PER_BATCH", "ADAPTIVE_DIM", "PILOT_MAX_DEPTH", "PILOT_PATHS_PER_BATCH", "PILOT_BATCHES",
-           "pilot_batch_paths"]
+           "pilot_batch_paths", "MAIN_PATHS_PER_BATCH", "MAIN_BATCHES", "main_batch_paths"]
 
 #: Paths per batch when ``batch_spp`` is not given: big enough that per-bounce
 #: overhead is small, small enough that two processes do not fight over the
@@ -71,6 +71,27 @@ PILOT_PATHS_PER_BATCH = PATHS_PER_BATCH // 16
 #: Batches a large pilot is cut into (:func:`pilot_batch_paths`): enough for
 #: two workers to share it evenly.
 PILOT_BATCHES = 8
+
+
+#: Largest batch of an adaptive render's second stage: the Lambertian kernel
+#: traces a batch through a wavefront of
+#: :data:`~mcvar.integrators.lambertian.WAVEFRONT_PATHS` slots (path
+#: regeneration), so a larger batch has fewer nearly empty tail iterations
+#: per path (Cornell 128 x 128, 256 spp: docs/performance.md, 'The suite').
+MAIN_PATHS_PER_BATCH = 1 << 18
+#: Batches a large second stage is cut into at least: enough for two workers
+#: to end together (each takes whole batches).
+MAIN_BATCHES = 16
+
+
+def main_batch_paths(paths: int) -> int:
+    """Paths per batch of a second stage of ``paths`` paths: :data:`PATHS_PER_BATCH`
+    until the stage fills :data:`MAIN_BATCHES` such batches, then the largest
+    power of two that still gives ``MAIN_BATCHES``, at most
+    :data:`MAIN_PATHS_PER_BATCH` (64 x 64 at 256 spp keeps 65,536; 128 x 128
+    at 256 spp and 256 x 256 at 64 spp get 262,144)."""
+    per = max(1, paths // MAIN_BATCHES)
+    return int(min(MAIN_PATHS_PER_BATCH, max(PATHS_PER_BATCH, 1 << (per.bit_length() - 1))))
 
 
 def pilot_batch_paths(pilot_paths: int) -> int:
@@ -404,7 +425,7 @@ class Adaptive:
                                    pilot_paths_per_batch=per_batch)
 
     def memory(self, plan) -> dict:
-        return dict(batch_paths=PATHS_PER_BATCH, whole_floats=0, films=2)
+        return dict(batch_paths=main_batch_paths(plan.n_pixels * plan.spp), whole_floats=0, films=2)
 
     def _pilot_settings(self, plan):
         s = plan.settings
@@ -441,8 +462,8 @@ class Adaptive:
             # most samples per pixel first (seeds go by batch index: the image does not depend on the order)
             levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
             caustic = caustic_stage(run)
-            run.stage(_level_specs(levels, PATHS_PER_BATCH), _count_level_specs(levels, PATHS_PER_BATCH),
-                      run.streams.stage[1], sink(film))
+            per = main_batch_paths(n_pix * spp)
+            run.stage(_level_specs(levels, per), _count_level_specs(levels, per), run.streams.stage[1], sink(film))
         except KeyboardInterrupt:
             run.interrupted = True
         return self._result(run, pilot_film, film, counts, caustic)
