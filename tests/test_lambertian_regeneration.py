@@ -207,3 +207,24 @@ def test_second_stage_batches_grow_with_the_render_but_stay_many():
             assert paths // per >= MAIN_BATCHES
         if per < MAIN_PATHS_PER_BATCH:              # ... and as large as that allows
             assert paths // (2 * per) < MAIN_BATCHES
+
+
+def test_only_renders_the_regenerating_kernel_traces_get_the_larger_batches(cornell):
+    """The second stage's batch size resolved by Adaptive.check: the Cornell box at
+    128 x 128, 256 spp (the Lambertian kernel) gets MAIN_PATHS_PER_BATCH; the same
+    render through the general loop, a scene the kernel cannot trace, a method that
+    is not path tracing, and a small render keep PATHS_PER_BATCH; an explicit value wins."""
+    from mcvar.integrators import METHODS, Adaptive
+    from mcvar.integrators.driver import _plan
+
+    def per(scene, method="path", spp=256, res=128, allocation=None, **kw):
+        _, a = _plan(scene, METHODS[method], spp, res, "sobol", allocation or Adaptive(), kw)
+        return a.paths_per_batch
+    assert per(cornell) == MAIN_PATHS_PER_BATCH
+    assert per(cornell, kernel="general") == PATHS_PER_BATCH
+    assert per(load_scene("cornell-spheres")) == PATHS_PER_BATCH
+    assert per(cornell, method="photon") == PATHS_PER_BATCH
+    assert per(cornell, res=64) == PATHS_PER_BATCH
+    assert per(cornell, allocation=Adaptive(paths_per_batch=4096)) == 4096
+    with pytest.raises(ValueError, match="paths_per_batch"):
+        Adaptive(paths_per_batch=0)

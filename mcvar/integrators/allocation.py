@@ -336,6 +336,11 @@ class Adaptive:
     pilot_paths_per_batch : int, optional
         Paths per pilot batch (default :func:`pilot_batch_paths` of the
         pilot's paths: :data:`PILOT_PATHS_PER_BATCH`, more for large images).
+    paths_per_batch : int, optional
+        Paths per second-stage batch (default :func:`main_batch_paths` of the
+        render's paths where the Lambertian kernel traces it, whose wavefront
+        regenerates paths: up to :data:`MAIN_PATHS_PER_BATCH`; otherwise
+        :data:`PATHS_PER_BATCH`). It does not depend on ``workers``.
     spp_map : ndarray of int (H, W), optional
         The second stage's samples per pixel, given instead of found by a
         pilot (then ``pilot_spp`` must be None or 0): an oracle allocation,
@@ -358,6 +363,7 @@ class Adaptive:
     exponent: float | None = None
     pilot_paths_per_batch: int | None = None
     spp_map: np.ndarray | None = None
+    paths_per_batch: int | None = None
 
     name = "adaptive"
     sampler_dim = ADAPTIVE_DIM
@@ -383,9 +389,9 @@ class Adaptive:
             if not 0.0 <= float(e) <= 1.0:
                 raise ValueError(f"exponent must be in [0, 1]; got {e}")
             object.__setattr__(self, "exponent", float(e))
-        if self.pilot_paths_per_batch is not None:
-            object.__setattr__(self, "pilot_paths_per_batch",
-                               check_count(self.pilot_paths_per_batch, "pilot_paths_per_batch"))
+        for key in ("pilot_paths_per_batch", "paths_per_batch"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, check_count(getattr(self, key), key))
         if self.spp_map is not None:
             m = np.asarray(self.spp_map)
             if m.ndim != 2 or not np.issubdtype(m.dtype, np.integer) or m.size == 0 or m.min() < 1:
@@ -406,11 +412,17 @@ class Adaptive:
                              "of two (use sobol, random, multi_jittered, ...)")
         if plan.run.batch_spp is not None:
             raise ValueError("batch_spp applies to allocation='uniform' (adaptive batches are cut by paths)")
+        main = self.paths_per_batch
+        if main is None:
+            from .state import lambertian_scene     # layer: the wavefront's tables (as caustic_stage)
+            regenerates = (method.name in STRATEGIES and plan.settings.kernel != "general"
+                           and lambertian_scene(plan.scene))
+            main = main_batch_paths(plan.n_pixels * spp) if regenerates else PATHS_PER_BATCH
         if self.spp_map is not None:
             w, h = plan.res
             if self.spp_map.shape != (h, w):
                 raise ValueError(f"spp_map must have the image's shape (H, W) = {(h, w)}; got {self.spp_map.shape}")
-            return self
+            return dataclasses.replace(self, paths_per_batch=main)
         pilot = max(4, spp // 32) if self.pilot_spp is None else self.pilot_spp
         lo = max(1, spp // 8) if self.min_spp is None else self.min_spp
         hi = 64 * spp if self.max_spp is None else self.max_spp
@@ -422,10 +434,10 @@ class Adaptive:
         per_batch = pilot_batch_paths(plan.n_pixels * pilot) if self.pilot_paths_per_batch is None \
             else self.pilot_paths_per_batch
         return dataclasses.replace(self, pilot_spp=pilot, min_spp=lo, max_spp=hi, exponent=exponent,
-                                   pilot_paths_per_batch=per_batch)
+                                   pilot_paths_per_batch=per_batch, paths_per_batch=main)
 
     def memory(self, plan) -> dict:
-        return dict(batch_paths=main_batch_paths(plan.n_pixels * plan.spp), whole_floats=0, films=2)
+        return dict(batch_paths=self.paths_per_batch or PATHS_PER_BATCH, whole_floats=0, films=2)
 
     def _pilot_settings(self, plan):
         s = plan.settings
@@ -462,7 +474,7 @@ class Adaptive:
             # most samples per pixel first (seeds go by batch index: the image does not depend on the order)
             levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
             caustic = caustic_stage(run)
-            per = main_batch_paths(n_pix * spp)
+            per = self.paths_per_batch
             run.stage(_level_specs(levels, per), _count_level_specs(levels, per), run.streams.stage[1], sink(film))
         except KeyboardInterrupt:
             run.interrupted = True
