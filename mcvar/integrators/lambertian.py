@@ -71,7 +71,8 @@ class _Tables:
 #: Live paths of the kernel's wavefront: a batch of more camera paths is traced
 #: through this many slots, a finished path's slot taken by a new camera path
 #: (path regeneration), so that one batch has one tail of nearly empty
-#: iterations however many paths it holds (docs/performance.md, 'The suite').
+#: iterations however many paths it holds (docs/performance.md, 'The Cornell cases:
+#: path regeneration').
 WAVEFRONT_PATHS = 1 << 16
 #: The slots are refilled once fewer than this share of them is live (a refill
 #: copies the live state; doing it every iteration cost more than it saved).
