@@ -349,6 +349,28 @@ def _square_to_cosine_hemisphere_unchecked(u0, u1, trig=np.float64):
     return x, y, z
 
 
+def _cosine_hemisphere_polar_unchecked(u0, u1):
+    """Malley's method through the polar disk map, float32: ``r = sqrt(u0)``,
+    ``phi = 2 pi u1``, so ``(x, y, z) = (r cos phi, sqrt(1 - u0), r sin phi)``.
+
+    The same cosine-weighted density as :func:`square_to_cosine_hemisphere`
+    (the polar map ``(sqrt(u0), 2 pi u1)`` is uniform on the disk: its
+    Jacobian is ``pi``), about 3x cheaper than the concentric map (no branch,
+    no division), but it stretches strata near the centre: the integrators
+    use it only for iid numbers, whose stratification does not matter
+    (pbrt-v4, sec. A.5.1 and A.5.3). ``u0, u1``: 1-D float32 in [0, 1]."""
+    phi = u1 * np.float32(2.0 * np.pi)
+    r = np.sqrt(u0)
+    x = np.cos(phi)
+    x *= r
+    z = np.sin(phi)
+    z *= r
+    y = np.subtract(np.float32(1.0), u0)
+    np.maximum(y, 0.0, out=y)
+    np.sqrt(y, out=y)
+    return x, y, z
+
+
 def square_to_cosine_hemisphere_pdf(v) -> np.ndarray:
     """``cos(theta) / pi = v[..., 1] / pi`` per steradian for ``y >= 0``, else 0."""
     v = _dirs(v)

@@ -44,7 +44,7 @@ from .stream import WHOLE_SET_FLOATS, whole_dims, whole_pattern
 
 __all__ = ["Uniform", "Adaptive", "AdaptiveRender", "allocate", "get_allocation", "ALLOCATIONS",
            "PATHS_PER_BATCH", "ADAPTIVE_DIM", "PILOT_MAX_DEPTH", "PILOT_PATHS_PER_BATCH", "PILOT_BATCHES",
-           "pilot_batch_paths"]
+           "pilot_batch_paths", "MAIN_PATHS_PER_BATCH", "MAIN_BATCHES", "main_batch_paths"]
 
 #: Paths per batch when ``batch_spp`` is not given: big enough that per-bounce
 #: overhead is small, small enough that two processes do not fight over the
@@ -71,6 +71,27 @@ PILOT_PATHS_PER_BATCH = PATHS_PER_BATCH // 16
 #: Batches a large pilot is cut into (:func:`pilot_batch_paths`): enough for
 #: two workers to share it evenly.
 PILOT_BATCHES = 8
+
+
+#: Largest batch of an adaptive render's second stage: the Lambertian kernel
+#: traces a batch through a wavefront of
+#: :data:`~mcvar.integrators.lambertian.WAVEFRONT_PATHS` slots (path
+#: regeneration), so a larger batch has fewer nearly empty tail iterations
+#: per path (Cornell 128 x 128, 256 spp: docs/performance.md, 'The suite').
+MAIN_PATHS_PER_BATCH = 1 << 18
+#: Batches a large second stage is cut into at least: enough for two workers
+#: to end together (each takes whole batches).
+MAIN_BATCHES = 16
+
+
+def main_batch_paths(paths: int) -> int:
+    """Paths per batch of a second stage of ``paths`` paths: :data:`PATHS_PER_BATCH`
+    until the stage fills :data:`MAIN_BATCHES` such batches, then the largest
+    power of two that still gives ``MAIN_BATCHES``, at most
+    :data:`MAIN_PATHS_PER_BATCH` (64 x 64 at 256 spp keeps 65,536; 128 x 128
+    at 256 spp and 256 x 256 at 64 spp get 262,144)."""
+    per = max(1, paths // MAIN_BATCHES)
+    return int(min(MAIN_PATHS_PER_BATCH, max(PATHS_PER_BATCH, 1 << (per.bit_length() - 1))))
 
 
 def pilot_batch_paths(pilot_paths: int) -> int:
@@ -315,6 +336,11 @@ class Adaptive:
     pilot_paths_per_batch : int, optional
         Paths per pilot batch (default :func:`pilot_batch_paths` of the
         pilot's paths: :data:`PILOT_PATHS_PER_BATCH`, more for large images).
+    paths_per_batch : int, optional
+        Paths per second-stage batch (default :func:`main_batch_paths` of the
+        render's paths where the Lambertian kernel traces it, whose wavefront
+        regenerates paths: up to :data:`MAIN_PATHS_PER_BATCH`; otherwise
+        :data:`PATHS_PER_BATCH`). It does not depend on ``workers``.
     spp_map : ndarray of int (H, W), optional
         The second stage's samples per pixel, given instead of found by a
         pilot (then ``pilot_spp`` must be None or 0): an oracle allocation,
@@ -337,6 +363,7 @@ class Adaptive:
     exponent: float | None = None
     pilot_paths_per_batch: int | None = None
     spp_map: np.ndarray | None = None
+    paths_per_batch: int | None = None
 
     name = "adaptive"
     sampler_dim = ADAPTIVE_DIM
@@ -362,9 +389,9 @@ class Adaptive:
             if not 0.0 <= float(e) <= 1.0:
                 raise ValueError(f"exponent must be in [0, 1]; got {e}")
             object.__setattr__(self, "exponent", float(e))
-        if self.pilot_paths_per_batch is not None:
-            object.__setattr__(self, "pilot_paths_per_batch",
-                               check_count(self.pilot_paths_per_batch, "pilot_paths_per_batch"))
+        for key in ("pilot_paths_per_batch", "paths_per_batch"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, check_count(getattr(self, key), key))
         if self.spp_map is not None:
             m = np.asarray(self.spp_map)
             if m.ndim != 2 or not np.issubdtype(m.dtype, np.integer) or m.size == 0 or m.min() < 1:
@@ -385,11 +412,17 @@ class Adaptive:
                              "of two (use sobol, random, multi_jittered, ...)")
         if plan.run.batch_spp is not None:
             raise ValueError("batch_spp applies to allocation='uniform' (adaptive batches are cut by paths)")
+        main = self.paths_per_batch
+        if main is None:
+            from .state import lambertian_scene     # layer: the wavefront's tables (as caustic_stage)
+            regenerates = (method.name in STRATEGIES and plan.settings.kernel != "general"
+                           and lambertian_scene(plan.scene))
+            main = main_batch_paths(plan.n_pixels * spp) if regenerates else PATHS_PER_BATCH
         if self.spp_map is not None:
             w, h = plan.res
             if self.spp_map.shape != (h, w):
                 raise ValueError(f"spp_map must have the image's shape (H, W) = {(h, w)}; got {self.spp_map.shape}")
-            return self
+            return dataclasses.replace(self, paths_per_batch=main)
         pilot = max(4, spp // 32) if self.pilot_spp is None else self.pilot_spp
         lo = max(1, spp // 8) if self.min_spp is None else self.min_spp
         hi = 64 * spp if self.max_spp is None else self.max_spp
@@ -401,10 +434,10 @@ class Adaptive:
         per_batch = pilot_batch_paths(plan.n_pixels * pilot) if self.pilot_paths_per_batch is None \
             else self.pilot_paths_per_batch
         return dataclasses.replace(self, pilot_spp=pilot, min_spp=lo, max_spp=hi, exponent=exponent,
-                                   pilot_paths_per_batch=per_batch)
+                                   pilot_paths_per_batch=per_batch, paths_per_batch=main)
 
     def memory(self, plan) -> dict:
-        return dict(batch_paths=PATHS_PER_BATCH, whole_floats=0, films=2)
+        return dict(batch_paths=self.paths_per_batch or PATHS_PER_BATCH, whole_floats=0, films=2)
 
     def _pilot_settings(self, plan):
         s = plan.settings
@@ -441,8 +474,8 @@ class Adaptive:
             # most samples per pixel first (seeds go by batch index: the image does not depend on the order)
             levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
             caustic = caustic_stage(run)
-            run.stage(_level_specs(levels, PATHS_PER_BATCH), _count_level_specs(levels, PATHS_PER_BATCH),
-                      run.streams.stage[1], sink(film))
+            per = self.paths_per_batch
+            run.stage(_level_specs(levels, per), _count_level_specs(levels, per), run.streams.stage[1], sink(film))
         except KeyboardInterrupt:
             run.interrupted = True
         return self._result(run, pilot_film, film, counts, caustic)

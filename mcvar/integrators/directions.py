@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..bsdf import BSDF as BSDF_BASE
-from ..warps import _INV_PI, _square_to_cosine_hemisphere_unchecked
+from ..warps import _INV_PI, _cosine_hemisphere_polar_unchecked, _square_to_cosine_hemisphere_unchecked
 from .stream import BSDF, SampleStream
 
 __all__ = ["Vertex", "Directions", "sample_directions", "unchecked", "unit64"]
@@ -37,8 +37,9 @@ class Vertex:
 
     Attributes
     ----------
-    k : int
-        The vertex (reached by segment ``k``).
+    k : int or None
+        The vertex (reached by segment ``k``); None when the stream knows each
+        row's vertex (the Lambertian kernel's wavefront of paths at different depths).
     idx : ndarray of int, shape (m,)
         The paths' rows in the sample stream.
     frame : tuple of three (3, m) arrays
@@ -62,6 +63,11 @@ class Vertex:
         General loop: the albedo of every primitive whose material is
         Lambertian, 0 on the others (their groups overwrite their rows):
         cosine sampling is written out for every row at once.
+    stratified : slice or None
+        Lambertian kernel: the rows whose BSDF numbers come from the sampler
+        (a stratified set: the concentric map keeps its strata compact); the
+        other rows draw iid numbers and use the cheaper polar map (the same
+        density). None: every row as stratified.
     """
 
     k: int
@@ -74,6 +80,7 @@ class Vertex:
     albedo: np.ndarray | None = None
     prim: np.ndarray | None = None
     diffuse: np.ndarray | None = None
+    stratified: slice | None = None
 
 
 @dataclass
@@ -177,7 +184,13 @@ def _cosine(vertex: Vertex, stream: SampleStream, out) -> Directions:
     on the side of the surface ``wo`` is on (arrays in the frame's precision)."""
     fs = vertex.frame[0]
     u = stream.vertex(vertex.k, BSDF, 2, vertex.idx, fs.dtype)
-    x, y, z = _square_to_cosine_hemisphere_unchecked(u[0], u[1], np.float32)
+    st = vertex.stratified
+    if st is None or u.dtype != np.float32:
+        x, y, z = _square_to_cosine_hemisphere_unchecked(u[0], u[1], np.float32)
+    else:
+        x, y, z = _cosine_hemisphere_polar_unchecked(u[0], u[1])
+        if st.stop > st.start:
+            x[st], y[st], z[st] = _square_to_cosine_hemisphere_unchecked(u[0, st], u[1, st], np.float32)
     pdf = y * (1.0 / np.pi)
     ok = y > 0.0
     ok &= vertex.sgn != 0.0

@@ -22,6 +22,7 @@ from .settings import HEURISTICS, PathSettings, Strategies
 from .stream import ROULETTE, SampleStream
 
 __all__ = ["PathState", "SceneTables", "Transport", "shadow_rays", "roulette", "dot", "light_caustics_apply",
+           "lambertian_scene",
            "RR_START_DEPTH", "RR_MAX_DEPTH"]
 
 #: Russian roulette starts once a path has this many segments.
@@ -217,9 +218,7 @@ class SceneTables:
                                       [float(c) for c in scene.light_normal[0]], float(emitters.pdf_area[0]))
         #: ``caustics='light'`` applies (:func:`~mcvar.integrators.caustics.light_caustics_apply`)
         self.light_caustics = self.quad_emission is not None and light_caustics_apply(scene)
-        self.lambertian = (emitters.single_quad and not self.spheres and self.n_tri > 0
-                           and not self.hidden_emitters
-                           and all(type(m) is Lambertian for m in scene.materials))
+        self.lambertian = lambertian_scene(scene, emitters)
 
     @classmethod
     def of(cls, scene, tracer, light_sampling: str) -> "SceneTables":
@@ -476,6 +475,16 @@ class Transport:
         w = self.emission_weight(k, np.asarray(state.prev_pdf[miss], dtype=np.float64),
                                  lambda: self.emitters.environment_pdf(dm))
         self.add(state.idx[miss], state.beta[:, miss] * le.T * w)
+
+
+def lambertian_scene(scene, emitters: Emitters | None = None) -> bool:
+    """Whether the Lambertian kernel (:mod:`mcvar.integrators.lambertian`) traces
+    ``scene``: Lambertian triangles only, exactly one quad light and no other
+    emitting surface, no environment (:attr:`SceneTables.lambertian`)."""
+    emitters = Emitters(scene) if emitters is None else emitters
+    hidden = bool(np.any(np.any(scene.prim_emission > 0, axis=1) & (scene.prim_light < 0)))
+    return (emitters.single_quad and scene.n_spheres == 0 and scene.n_triangles > 0 and not hidden
+            and all(type(m) is Lambertian for m in scene.materials))
 
 
 def light_caustics_apply(scene) -> bool:
