@@ -6,7 +6,9 @@ from scipy import stats
 from mcvar.integrators import render
 from mcvar.integrators.bdpt import BDPTSettings, bdpt_contributions
 from mcvar.integrators.emitters import LightOrigins
-from mcvar.integrators.mmlt import MmltSettings, StateLayout, lockstep, mmlt_film, stratified_states
+from mcvar.integrators.light import _Context
+from mcvar.integrators.mmlt import (MmltSettings, StateLayout, bootstrap_values, evaluate_states, lockstep, mmlt_film,
+                                    strategy_columns, stratified_states)
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
 
@@ -35,10 +37,8 @@ def test_stratified_bootstrap_states_are_uniform_with_two_per_pixel():
     x = stratified_states(128, 5, (8, 8), np.random.default_rng(1))
     pix = (x[:, 1] * 8).astype(int) * 8 + (x[:, 0] * 8).astype(int)
     assert sorted(pix) == sorted(list(range(64)) * 2)                     # every pixel twice
-    for c in range(2, 4):                                                  # Latin hypercube columns
+    for c in range(2, 5):                                                  # Latin hypercube columns
         assert sorted((x[:, c] * 128).astype(int)) == list(range(128))
-    for p in range(64):                                                    # strategy: both halves per pixel
-        assert sorted((x[pix == p, 4] * 2).astype(int)) == [0, 1]
 
 
 def test_mmlt_is_unbiased_against_bdpt_per_block(cornell):
@@ -197,3 +197,34 @@ def test_start_up_bias_is_removed_by_the_bootstrap(cornell):
         share[boot] = (np.mean(vals), np.std(vals, ddof=1) / np.sqrt(6))
     assert abs(share[True][0] - truth) < 5 * share[True][1], (share, truth)
     assert share[False][0] - truth > 5 * share[False][1], (share, truth)
+
+
+@pytest.mark.parametrize("name", ["cornell-door", "cornell-point", "quad-environment", "cornell-caustic"])
+def test_bootstrap_values_are_each_strategys_target(name):
+    """An exact identity between two evaluations of f_d: ``bootstrap_values`` (one BDPT sample per
+    state, full-length subpaths joined in every way) and ``evaluate_states`` (one strategy per state,
+    every subpath traced only as long as its strategy needs, all of them in one wavefront). The
+    shorter subpaths are prefixes of the longer ones (no Russian roulette), so each state's value
+    must be its column's to rounding, on area, point and environment lights and on glass."""
+    scene = load_scene(name)
+    res, depth = (8, 8), 4
+    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
+    lay = StateLayout(depth)
+    rng = np.random.default_rng(2207)
+    x = stratified_states(16384, lay.dim, res, rng)
+    fb, _ = bootstrap_values(ctx, lay, x)
+    cols = strategy_columns(depth)
+    j = rng.integers(0, len(cols), size=x.shape[0])               # a strategy per state
+    d = np.array([cols[i][0] for i in j])
+    s = np.array([cols[i][1] for i in j])
+    y = x.copy()
+    y[:, lay.strategy] = (s + rng.random(x.shape[0]) * (1 - 1e-9)) / (d + 1)
+    f, pixel, rgb, _ = evaluate_states(ctx, lay, y, d)
+    want = fb[np.arange(x.shape[0]), j]
+    assert np.count_nonzero(want) >= 50                           # the identity is not vacuous
+    np.testing.assert_allclose(f, want, rtol=1e-12, atol=0.0)
+    assert np.all((pixel >= 0) == (f > 0)) and np.allclose(rgb @ LUM, f, rtol=1e-12)
+    # and BDPT's estimate of b_d from the columns is the mean of one-strategy states x (d + 1) / (d + 1)
+    for dd in range(1, depth + 1):
+        mine = [i for i, c in enumerate(cols) if c[0] == dd]
+        assert fb[:, mine].min() >= 0.0

@@ -81,8 +81,12 @@ OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, 
 #: and two bounces in the room).
 DEFAULT_MAX_DEPTH = 5
 
-#: Fewest bootstrap states per depth by default (a small render still finds lit paths).
+#: Fewest bootstrap states by default (a small render still finds lit paths).
 MIN_BOOTSTRAP = 1024
+
+#: Bootstrap states per mutation by default (``n_bootstrap=None``; each state is one BDPT sample
+#: that serves every depth: docs/mcmc.md, 'MMLT').
+BOOTSTRAP_SHARE = 0.5
 
 #: Steps per chain below which no autocorrelation time is reported (NaN):
 #: Sokal's window needs chains longer than a few ``tau``.
@@ -156,71 +160,122 @@ class _Subset:
         return _Rows(getattr(self._sub, name), self._rows)
 
 
+def _film_position(x, res):
+    """Pixels and in-pixel offsets of the film numbers (columns 0, 1) of states ``x``."""
+    width, height = res
+    col = np.minimum((x[:, 0] * width).astype(np.intp), width - 1)
+    row = np.minimum((x[:, 1] * height).astype(np.intp), height - 1)
+    offsets = np.stack([x[:, 0] * width - col, x[:, 1] * height - row], axis=1)
+    return row * width + col, offsets
+
+
+def _subpaths(ctx, layout: StateLayout, x, cam_cap, light_cap):
+    """The camera subpaths (``cam_cap`` vertices each, None: none) and light subpaths (``light_cap``)
+    of states ``x``, each traced in one wavefront (:class:`~mcvar.integrators.light.PathNumbers`
+    with per-path caps): ``(C, L, rays)``."""
+    C = L = None
+    rays = 0
+    if cam_cap is not None and x.shape[0]:
+        pixel, offsets = _film_position(x, ctx.res)
+        numbers = PathNumbers(None, x[:, layout.camera_vertices], cap=cam_cap)
+        C = camera_subpath(ctx.scene, ctx.tracer, ctx.res, pixel, offsets, int(cam_cap.max()), numbers,
+                           roulette=False)
+        rays += C.rays
+    if light_cap is not None and x.shape[0]:
+        numbers = PathNumbers(np.ascontiguousarray(x[:, layout.light_origin]), x[:, layout.light_vertices],
+                              cap=light_cap)
+        L = light_subpath(ctx.scene, ctx.tracer, ctx.em, x.shape[0], int(light_cap.max()), numbers,
+                          roulette=False)
+        rays += L.rays
+    return C, L, rays
+
+
+def _connect(ctx, L, C, s: int, t: int):
+    """BDPT's connection of strategy ``(s, t)`` (:mod:`mcvar.integrators.bdpt`): ``(paths, pixel,
+    value, weight, rays)`` for the paths that carry light, weighted by BDPT's MIS weight."""
+    if t == 1:
+        k, pix, value, weight = _connect_camera(ctx, L, s, _mis_weight)
+        return k, pix, value, weight, k.size
+    if s == 0:
+        k, value, weight = _connect_emitter(ctx, C, t)
+        return k, C.pixel[k], value, weight, 0
+    k, value, weight = _connect_inner(ctx, L, C, s, t)
+    return k, C.pixel[k], value, weight, k.size
+
+
 def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
     """The target and the splat of each state: ``(f (m,), pixel (m,), rgb (m, 3), rays)``.
 
     State ``x[j]`` at depth ``depth[j]`` picks strategy ``s = floor(u (d + 1))``
     (``u`` its connection number), ``t = d + 1 - s``; the camera subpath of
     ``t`` vertices and the light subpath of ``s`` vertices are traced from its
-    streams (:class:`~mcvar.integrators.light.PathNumbers`), all states with
-    the same ``t`` (``s``) in one wavefront, and joined by BDPT's connection
-    of that strategy, weighted by BDPT's MIS weight (:func:`~mcvar.integrators.bdpt._mis_weight`).
+    streams (:class:`~mcvar.integrators.light.PathNumbers`), the camera
+    subpaths of all states in one wavefront and the light subpaths in
+    another (each path stops at its own length), and joined by BDPT's
+    connection of that strategy, weighted by BDPT's MIS weight
+    (:func:`~mcvar.integrators.bdpt._mis_weight`), one call per strategy.
     ``rgb = (d + 1) w_{s,t} C_{s,t}`` (0 for paths that carry no light, with
     ``pixel = -1``), ``f = Y(rgb)``. ``E f = b_d`` for uniform states.
     """
-    scene, tracer, res = ctx.scene, ctx.tracer, ctx.res
-    width, height = res
     m = x.shape[0]
     n_strat = depth + 1
     s = np.minimum((x[:, layout.strategy] * n_strat).astype(np.intp), depth)
     t = n_strat - s
     rgb = np.zeros((m, 3))
     pixel = np.full(m, -1, dtype=np.intp)
-    rays = 0
-    cams, lights = {}, {}
-    for tv in np.unique(t[t >= 2]):
-        rows = np.flatnonzero(t == tv)
-        u = x[rows]
-        col = np.minimum((u[:, 0] * width).astype(np.intp), width - 1)
-        row = np.minimum((u[:, 1] * height).astype(np.intp), height - 1)
-        offsets = np.stack([u[:, 0] * width - col, u[:, 1] * height - row], axis=1)
-        numbers = PathNumbers(None, u[:, layout.camera_vertices])
-        C = camera_subpath(scene, tracer, res, row * width + col, offsets, int(tv), numbers, roulette=False)
-        rays += C.rays
-        cams[int(tv)] = (rows, C)
-    for sv in np.unique(s[s >= 1]):
-        rows = np.flatnonzero(s == sv)
-        u = x[rows]
-        numbers = PathNumbers(np.ascontiguousarray(u[:, layout.light_origin]), u[:, layout.light_vertices])
-        L = light_subpath(scene, tracer, ctx.em, rows.size, int(sv), numbers, roulette=False)
-        rays += L.rays
-        lights[int(sv)] = (rows, L)
-    for sv, tv in sorted(set(zip(s.tolist(), t.tolist()))):
-        grp = np.flatnonzero((s == sv) & (t == tv))
-        Lg = Cg = None
-        if sv >= 1:
-            rows, L = lights[sv]
-            Lg = _Subset(L, np.searchsorted(rows, grp))
-        if tv >= 2:
-            rows, C = cams[tv]
-            Cg = _Subset(C, np.searchsorted(rows, grp))
+    cam_rows, light_rows = np.flatnonzero(t >= 2), np.flatnonzero(s >= 1)
+    C, _, rays_c = _subpaths(ctx, layout, x[cam_rows], t[cam_rows] if cam_rows.size else None, None)
+    _, L, rays_l = _subpaths(ctx, layout, x[light_rows], None, s[light_rows] if light_rows.size else None)
+    rays = rays_c + rays_l
+    code = s * (layout.max_depth + 2) + t
+    order = np.argsort(code, kind="stable")
+    keys, starts = np.unique(code[order], return_index=True)
+    for key, grp in zip(keys.tolist(), np.split(order, starts[1:])):
+        sv, tv = divmod(key, layout.max_depth + 2)
+        Lg = _Subset(L, np.searchsorted(light_rows, grp)) if sv >= 1 else None
+        Cg = _Subset(C, np.searchsorted(cam_rows, grp)) if tv >= 2 else None
         if (Lg is not None and not np.any(Lg.length >= sv)) or (Cg is not None and not np.any(Cg.length >= tv)):
             continue                                  # no path of the group has the vertices
-        if tv == 1:
-            k, pix, value, weight = _connect_camera(ctx, Lg, sv, _mis_weight)
-            rays += k.size
-        elif sv == 0:
-            k, value, weight = _connect_emitter(ctx, Cg, tv)
-            pix = Cg.pixel[k]
-        else:
-            k, value, weight = _connect_inner(ctx, Lg, Cg, sv, tv)
-            rays += k.size
-            pix = Cg.pixel[k]
+        k, pix, value, weight, r = _connect(ctx, Lg, Cg, sv, tv)
+        rays += r
         rgb[grp[k]] = value * (weight * n_strat[grp[k]])[:, None]
         pixel[grp[k]] = pix
     f = rgb @ _LUM
     pixel[f <= 0.0] = -1
     return f, pixel, rgb, rays
+
+
+def strategy_columns(max_depth: int):
+    """``(depth, s)`` of every strategy of depths ``1 .. max_depth``: the columns of :func:`bootstrap_values`."""
+    return [(d, s) for d in range(1, max_depth + 1) for s in range(d + 1)]
+
+
+def bootstrap_values(ctx, layout: StateLayout, x: np.ndarray):
+    """Every strategy's target at the camera and light numbers of states ``x``: ``(f (m, n_strategies), rays)``.
+
+    One bidirectional sample per state (the BDPT of
+    :func:`~mcvar.integrators.bdpt.bdpt_contributions` at a fixed depth):
+    a camera subpath of ``max_depth + 1`` and a light subpath of
+    ``max_depth`` vertices, joined in every way. Column ``j`` holds
+    ``f_d`` of the state with strategy ``(d, s) = strategy_columns(max_depth)[j]``
+    (its connection number anywhere in ``[s, s + 1) / (d + 1)``): the
+    subpaths of a state with fewer vertices are prefixes of these (no Russian
+    roulette), so the values are :func:`evaluate_states`' (tested). ``mean_j
+    sum_s f[:, (d, s)] / (d + 1)`` is BDPT's estimate of ``b_d``.
+    """
+    D = layout.max_depth
+    m = x.shape[0]
+    C, L, rays = _subpaths(ctx, layout, x, np.full(m, D + 1), np.full(m, D))
+    cols = strategy_columns(D)
+    f = np.zeros((m, len(cols)))
+    s_max, t_max = int(L.length.max()), int(C.length.max())
+    for j, (d, s) in enumerate(cols):
+        if s > s_max or d + 1 - s > t_max:
+            continue                                  # no path has the vertices
+        k, _, value, weight, r = _connect(ctx, L, C, s, d + 1 - s)
+        rays += r
+        f[k, j] = (value * (weight * (d + 1))[:, None]) @ _LUM
+    return f, rays
 
 
 def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
@@ -340,49 +395,53 @@ def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
 
     The film position (columns 0, 1) is jittered per pixel (state ``i`` in
     pixel ``perm(i mod n_pix)``), every other column is a Latin hypercube
-    column (``(perm + U) / n``) but the last (MMLT's strategy number), which
-    is stratified inside each pixel (a pixel's ``k`` states spread over
-    ``k`` strata in random order: its strategies evenly). Each state is marginally uniform, so
+    column (``(perm + U) / n``). Each state is marginally uniform, so
     ``mean f`` stays an unbiased estimate of ``b`` and resampling ``∝ f``
     still starts the chains near ``f / b``; the variance of ``b`` from
     *which pixel* a state lands in is gone (on the door scene the slit's
     pixels are 1 % of the image and hold half its light: with iid states,
-    ``b_2`` had a 15 % standard error from 16 384 states).
+    ``b_2`` had a 15 % standard error from 16 384 states). The strategy
+    number (the last column) is not read by the bootstrap, which evaluates
+    every strategy of a state (:func:`bootstrap_values`).
     """
     width, height = res
     n_pix = width * height
     x = np.empty((n, dim))
-    i = np.arange(n)
-    pix = rng.permutation(n_pix)[i % n_pix]
+    pix = rng.permutation(n_pix)[np.arange(n) % n_pix]
     x[:, 0] = (pix % width + rng.random(n)) / width
     x[:, 1] = (pix // width + rng.random(n)) / height
-    for c in range(2, dim - 1):
+    for c in range(2, dim):
         x[:, c] = (rng.permutation(n) + rng.random(n)) / n
-    rounds = -(-n // n_pix)                       # the last column: stratified inside each pixel
-    perm = np.argsort(rng.random((n_pix, rounds)), axis=1)
-    x[:, dim - 1] = (perm[i % n_pix, i // n_pix] + rng.random(n)) / rounds
     np.minimum(x, np.nextafter(1.0, 0.0), out=x)
     return x
 
 
-def _starts(fd, per_depth, bootstrap: bool, rng) -> np.ndarray:
-    """Rows of the bootstrap (``fd``: values, shape (depths, n)) the chains of each depth start at:
-    drawn ``∝ f`` (bootstrap), or uniformly among the lit ones (start-up bias)."""
-    depths, n = fd.shape
-    pick = np.empty(int(per_depth.sum()), dtype=np.intp)
-    at = 0
-    for d in range(depths):
-        c = int(per_depth[d])
+def _starts(fb, per_depth, max_depth: int, bootstrap: bool, rng):
+    """The bootstrap candidates the chains start at: ``(rows, depth, s)`` per chain.
+
+    ``fb`` (n, n_strategies): :func:`bootstrap_values`. The chains of depth
+    ``d`` pick among the ``n (d + 1)`` candidates (row, strategy) of that
+    depth ``∝ f`` (sampling-importance resampling; ``bootstrap=False``:
+    uniformly among the lit ones, for the start-up bias).
+    """
+    n = fb.shape[0]
+    cols = strategy_columns(max_depth)
+    rows, dep, strat = [], [], []
+    for d in range(1, max_depth + 1):
+        c = int(per_depth[d - 1])
         if c == 0:
             continue
-        w = fd[d]
+        js = [j for j, (dd, _) in enumerate(cols) if dd == d]
+        w = fb[:, js].ravel()                              # candidate r * (d + 1) + s
         if bootstrap:
-            pick[at:at + c] = d * n + rng.choice(n, size=c, p=w / w.sum())
+            cand = rng.choice(w.size, size=c, p=w / w.sum())
         else:
             lit = np.flatnonzero(w > 0)
-            pick[at:at + c] = d * n + lit[rng.integers(0, lit.size, size=c)]
-        at += c
-    return pick
+            cand = lit[rng.integers(0, lit.size, size=c)]
+        rows.append(cand // (d + 1))
+        strat.append(cand % (d + 1))
+        dep.append(np.full(c, d))
+    return np.concatenate(rows), np.concatenate(dep), np.concatenate(strat)
 
 
 def _allocate(b, chains):
@@ -411,8 +470,8 @@ def _check(opts: MmltSettings):
     if opts.heuristic not in ("balance", "power"):
         raise ValueError(f"heuristic must be 'balance' or 'power'; got {opts.heuristic!r}")
     layout = StateLayout(depth)
-    check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), None if n_boot is None else n_boot * depth,
-                      payload_words=4, dim_name="max_depth", dim_value=depth)
+    check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot, payload_words=len(strategy_columns(depth)),
+                      dim_name="max_depth", dim_value=depth)
     return depth, chains, sigma, p_large, n_boot, layout
 
 
@@ -477,41 +536,43 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     chains = min(chains, n_mut)
     n_steps = -(-n_mut // chains)
     if n_boot is None:
-        n_boot = max(chains, n_mut // 2, MIN_BOOTSTRAP)
-        check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot * depth_max, payload_words=4,
-                          dim_name="max_depth", dim_value=depth_max)
+        n_boot = max(chains, int(BOOTSTRAP_SHARE * n_mut), MIN_BOOTSTRAP)
+        check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot, dim_name="max_depth",
+                          payload_words=len(strategy_columns(depth_max)), dim_value=depth_max)
     tracer = tracer if tracer is not None else Tracer(scene)
     ctx = _Context(scene, tracer, LightOrigins(scene), res, opts.heuristic, True)
     rays = [0]
 
     def evaluate(x, depth):
-        f = np.empty(x.shape[0])
-        pix = np.empty(x.shape[0], dtype=np.intp)
-        rgb = np.empty((x.shape[0], 3))
-        for a in range(0, x.shape[0], CHAIN_CHUNK):
-            sl = slice(a, a + CHAIN_CHUNK)
-            f[sl], pix[sl], rgb[sl], r = evaluate_states(ctx, layout, x[sl], depth[sl])
-            rays[0] += r
+        f, pix, rgb, r = evaluate_states(ctx, layout, x, depth)
+        rays[0] += r
         return f, (pix, rgb)
 
-    # the bootstrap: n_boot uniform states per depth
-    boot_depth = np.repeat(np.arange(1, depth_max + 1), n_boot)
-    cand = np.concatenate([stratified_states(n_boot, layout.dim, res, rng) for _ in range(depth_max)])
-    fc, (pc, rc) = evaluate(cand, boot_depth)
-    fd = fc.reshape(depth_max, n_boot)
+    # the bootstrap: n_boot uniform camera and light numbers, every strategy of every depth of each
+    # (one BDPT sample per state): b_d and the candidates the chains start at
+    cand = stratified_states(n_boot, layout.dim, res, rng)
+    fb = np.empty((n_boot, len(strategy_columns(depth_max))))
+    for a in range(0, n_boot, CHAIN_CHUNK):
+        fb[a:a + CHAIN_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + CHAIN_CHUNK])
+        rays[0] += r
+    # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
+    fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
+                   / (d + 1) for d in range(1, depth_max + 1)])
     b = fd.mean(axis=1)
     b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
     if not b.sum() > 0.0:
-        raise ValueError(f"none of the {boot_depth.size} bootstrap paths carries light: cannot start the "
+        raise ValueError(f"none of the {n_boot} bootstrap paths carries light: cannot start the "
                          "chains (raise n_bootstrap)")
     per_depth = _allocate(b, chains)
-    dep = np.repeat(np.arange(1, depth_max + 1), per_depth)
-    pick = _starts(fd, per_depth, opts.bootstrap, rng)
-    # per depth: the splats' sum / N_d (times b_d at the end), and the large steps' values
+    rows, dep, strat = _starts(fb, per_depth, depth_max, opts.bootstrap, rng)
+    x0 = cand[rows]
+    del cand, fb
+    # the strategy number uniform in the candidate's stratum (below its top, so floor(u (d + 1)) = s)
+    x0[:, layout.strategy] = (strat + rng.random(rows.size) * (1.0 - 1e-9)) / (dep + 1)
+    # per depth: the splats' sum / N_d (times b_d at the end)
     inv_n = np.zeros(depth_max + 1)
     inv_n[1:] = np.divide(1.0, per_depth * n_steps, out=np.zeros(depth_max), where=per_depth > 0)
     films = np.zeros(((depth_max + 1) * n_pix, 3))
-    large_n, large_s1, large_s2 = np.zeros(depth_max + 1), np.zeros(depth_max + 1), np.zeros(depth_max + 1)
 
     def splat(payload, weight, dd):
         pix, rgb = payload
@@ -527,25 +588,22 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     tau = np.full(depth_max, np.nan)
     values_d = [[] for _ in range(depth_max)]
     for a in range(0, chains, CHAIN_CHUNK):
-        sel = pick[a:a + CHAIN_CHUNK]
         dd = dep[a:a + CHAIN_CHUNK]
+        xa = x0[a:a + CHAIN_CHUNK]
+        fa, pa = evaluate(xa, dd)                  # the starts' values: the bootstrap's (tested)
 
         def visit(px, py, acc_prob, fy, large, dd=dd):
             splat(px, 1.0 - acc_prob, dd)
             splat(py, acc_prob, dd)
-            large_n[:] += np.bincount(dd[large], minlength=depth_max + 1)
-            large_s1[:] += np.bincount(dd[large], weights=fy[large], minlength=depth_max + 1)
-            large_s2[:] += np.bincount(dd[large], weights=fy[large] ** 2, minlength=depth_max + 1)
 
-        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (cand[sel], fc[sel], (pc[sel], rc[sel])),
-                                    n_steps, (sigma, p_large), rng, visit=visit)
+        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (xa, fa, pa), n_steps, (sigma, p_large),
+                                    rng, visit=visit)
         n_acc += int(n.sum())
         for d in range(depth_max):
             cols = np.flatnonzero(dd == d + 1)
             if cols.size:
                 values_d[d].append(values[:, cols])
                 acc_d[d] += n[cols].sum()
-    del cand
     acceptance = np.full(depth_max, np.nan)
     for d in range(depth_max):
         if values_d[d]:
@@ -553,11 +611,6 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
             if n_steps >= MIN_TAU_STEPS:
                 tau[d] = max(integrated_time(v)[0], 1.0)
             acceptance[d] = acc_d[d] / v.size
-    # b_d from the bootstrap and the large steps together (both iid uniform samples of f_d)
-    n_b = n_boot + large_n[1:]
-    b = (fd.sum(axis=1) + large_s1[1:]) / n_b
-    var = np.maximum(((fd ** 2).sum(axis=1) + large_s2[1:]) / n_b - b * b, 0.0) * n_b / np.maximum(n_b - 1, 1)
-    b_se = np.sqrt(var / n_b)
     image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
     done = chains * n_steps
     ess = per_depth * n_steps / tau
