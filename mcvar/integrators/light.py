@@ -303,6 +303,9 @@ def _walk(ws: _Walk, lev, first, o, d, beta, pdf_dir, rng):
     scale = np.maximum(beta.max(axis=1), 1e-300)      # roulette on beta relative to its start
     rays = 0
     i = first
+    if isinstance(rng, PathNumbers) and rng.cap is not None:      # paths already at their cap trace nothing
+        go = np.flatnonzero(rng.cap > first)
+        idx, o, d, beta, pdf_dir, prev_delta, scale = (a[go] for a in (idx, o, d, beta, pdf_dir, prev_delta, scale))
     while idx.size and i < max_vertices:
         t, prim = tracer.closest_soa(np.ascontiguousarray(o.T), np.ascontiguousarray(d.T))
         rays += idx.size

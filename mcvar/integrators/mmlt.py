@@ -62,18 +62,24 @@ from ..tracer import Tracer
 from .bdpt import _connect_emitter, _connect_inner, _mis_weight
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult
+from .mmlt_lambertian import Workspace, connect_lambertian, lambertian_scene, trace_lambertian
 from .light import CHUNK_PATHS, PathNumbers, _connect_camera, _Context, camera_subpath, check_scene, light_subpath
 from .registry import Method, register
 
-__all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "MIN_TAU_STEPS", "MmltSettings", "MmltFilm", "StateLayout",
-           "mmlt_film", "stratified_states", "evaluate_states", "kelemen_mutate", "lockstep",
-           "run_batch"]
+__all__ = ["OPTIONS", "KERNELS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BOOTSTRAP_SHARE",
+           "MIN_TAU_STEPS", "MmltSettings", "MmltFilm", "StateLayout", "mmlt_film", "stratified_states",
+           "evaluate_states", "strategy_columns", "bootstrap_values", "kelemen_mutate", "lockstep", "run_batch"]
 
 #: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
 #: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
 #: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`)
 #: and whether the chains start from the bootstrap (False: start-up bias).
-OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True}
+OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True,
+           "kernel": "auto"}
+
+#: Values of the ``kernel`` option: 'auto' (the Lambertian kernel where the scene allows it), 'general'
+#: (BDPT's own connections: every scene), 'lambertian' (an error where it does not apply).
+KERNELS = ("auto", "general", "lambertian")
 
 #: The depth (segments) a render with ``max_depth=None`` uses: the state has a
 #: fixed size, so MMLT needs a finite depth (pbrt-v4's ``maxdepth`` 5 bounces
@@ -94,6 +100,10 @@ MIN_TAU_STEPS = 16
 
 #: Chains stepped at once (one wavefront); more are run chunk after chunk.
 CHAIN_CHUNK = CHUNK_PATHS
+
+#: Bootstrap states evaluated at once: each is joined in every strategy of every depth (20 at depth 5),
+#: so a chunk holds 20x as many connections as states.
+BOOTSTRAP_CHUNK = 8192
 
 _LUM = np.asarray(LUMINANCE_WEIGHTS)
 
@@ -203,7 +213,19 @@ def _connect(ctx, L, C, s: int, t: int):
     return k, C.pixel[k], value, weight, k.size
 
 
-def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
+def _kernel(ctx, kernel: str) -> bool:
+    """Whether the Lambertian kernel (:mod:`mcvar.integrators.mmlt_lambertian`) evaluates: ``kernel``
+    'auto' (where the scene allows it), 'general' (BDPT's own code) or 'lambertian'."""
+    if kernel == "general":
+        return False
+    ok = lambertian_scene(ctx.scene)
+    if kernel == "lambertian" and not ok:
+        raise ValueError(f"kernel='lambertian' needs Lambertian materials and area lights only; scene "
+                         f"{ctx.scene.name!r} has other materials, a point light or an environment map")
+    return ok
+
+
+def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray, kernel: str = "auto", work=None):
     """The target and the splat of each state: ``(f (m,), pixel (m,), rgb (m, 3), rays)``.
 
     State ``x[j]`` at depth ``depth[j]`` picks strategy ``s = floor(u (d + 1))``
@@ -216,11 +238,18 @@ def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
     (:func:`~mcvar.integrators.bdpt._mis_weight`), one call per strategy.
     ``rgb = (d + 1) w_{s,t} C_{s,t}`` (0 for paths that carry no light, with
     ``pixel = -1``), ``f = Y(rgb)``. ``E f = b_d`` for uniform states.
+    With ``kernel`` 'auto' a Lambertian scene is evaluated by the Lambertian
+    kernel instead (the same values in one vectorised pass:
+    :mod:`mcvar.integrators.mmlt_lambertian`); 'general' forces BDPT's code.
     """
     m = x.shape[0]
     n_strat = depth + 1
     s = np.minimum((x[:, layout.strategy] * n_strat).astype(np.intp), depth)
     t = n_strat - s
+    if _kernel(ctx, kernel):
+        C, L, pix, rays = trace_lambertian(ctx, layout, x, t, s, work)
+        f, pixel, rgb, r = connect_lambertian(ctx, C, L, pix, np.arange(m), s, t, depth)
+        return f, pixel, rgb, rays + r
     rgb = np.zeros((m, 3))
     pixel = np.full(m, -1, dtype=np.intp)
     cam_rows, light_rows = np.flatnonzero(t >= 2), np.flatnonzero(s >= 1)
@@ -250,7 +279,7 @@ def strategy_columns(max_depth: int):
     return [(d, s) for d in range(1, max_depth + 1) for s in range(d + 1)]
 
 
-def bootstrap_values(ctx, layout: StateLayout, x: np.ndarray):
+def bootstrap_values(ctx, layout: StateLayout, x: np.ndarray, kernel: str = "auto", work=None):
     """Every strategy's target at the camera and light numbers of states ``x``: ``(f (m, n_strategies), rays)``.
 
     One bidirectional sample per state (the BDPT of
@@ -265,8 +294,13 @@ def bootstrap_values(ctx, layout: StateLayout, x: np.ndarray):
     """
     D = layout.max_depth
     m = x.shape[0]
-    C, L, rays = _subpaths(ctx, layout, x, np.full(m, D + 1), np.full(m, D))
     cols = strategy_columns(D)
+    if _kernel(ctx, kernel):
+        C, L, pix, rays = trace_lambertian(ctx, layout, x, np.full(m, D + 1), np.full(m, D), work)
+        dep, s = (np.tile(np.array([c[i] for c in cols]), m) for i in (0, 1))
+        f, _, _, r = connect_lambertian(ctx, C, L, pix, np.repeat(np.arange(m), len(cols)), s, dep + 1 - s, dep)
+        return f.reshape(m, len(cols)), rays + r
+    C, L, rays = _subpaths(ctx, layout, x, np.full(m, D + 1), np.full(m, D))
     f = np.zeros((m, len(cols)))
     s_max, t_max = int(L.length.max()), int(C.length.max())
     for j, (d, s) in enumerate(cols):
@@ -288,7 +322,10 @@ def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
     the uniform density: MMLT adds it to the bootstrap's estimate of ``b``
     (Kelemen et al. 2002, section 4).
     """
-    y = x + rng.normal(0.0, sigma, size=x.shape)
+    # float32 normals (half the generator's time); their law is symmetric, so is the step
+    y = rng.standard_normal(x.shape, dtype=np.float32)
+    y *= np.float32(sigma)
+    y = x + y
     y -= np.floor(y)
     large = rng.random(x.shape[0]) < p_large if p_large > 0.0 else np.zeros(x.shape[0], dtype=bool)
     k = int(large.sum())
@@ -346,6 +383,7 @@ class MmltSettings:
     p_large: float = OPTIONS["p_large"]
     n_bootstrap: int | None = OPTIONS["n_bootstrap"]
     bootstrap: bool = OPTIONS["bootstrap"]
+    kernel: str = OPTIONS["kernel"]
 
 
 @dataclass(frozen=True)
@@ -469,6 +507,8 @@ def _check(opts: MmltSettings):
     check_bool(opts.bootstrap, "bootstrap")
     if opts.heuristic not in ("balance", "power"):
         raise ValueError(f"heuristic must be 'balance' or 'power'; got {opts.heuristic!r}")
+    if not isinstance(opts.kernel, str) or opts.kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}; got {opts.kernel!r}")
     layout = StateLayout(depth)
     check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot, payload_words=len(strategy_columns(depth)),
                       dim_name="max_depth", dim_value=depth)
@@ -543,8 +583,11 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     ctx = _Context(scene, tracer, LightOrigins(scene), res, opts.heuristic, True)
     rays = [0]
 
+    _kernel(ctx, opts.kernel)                  # kernel='lambertian' on another scene: the error, before work
+    work = Workspace()
+
     def evaluate(x, depth):
-        f, pix, rgb, r = evaluate_states(ctx, layout, x, depth)
+        f, pix, rgb, r = evaluate_states(ctx, layout, x, depth, opts.kernel, work)
         rays[0] += r
         return f, (pix, rgb)
 
@@ -552,8 +595,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     # (one BDPT sample per state): b_d and the candidates the chains start at
     cand = stratified_states(n_boot, layout.dim, res, rng)
     fb = np.empty((n_boot, len(strategy_columns(depth_max))))
-    for a in range(0, n_boot, CHAIN_CHUNK):
-        fb[a:a + CHAIN_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + CHAIN_CHUNK])
+    for a in range(0, n_boot, BOOTSTRAP_CHUNK):
+        fb[a:a + BOOTSTRAP_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + BOOTSTRAP_CHUNK], opts.kernel, work)
         rays[0] += r
     # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
     fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
@@ -643,7 +686,10 @@ def _check_options(scene, options) -> None:
     """``check_scene`` of ``mmlt``: a light to start light subpaths from, and every option's type and value."""
     check_scene(scene, options, "mmlt")
     _check(MmltSettings(chains=options["chains"], sigma=options["sigma"], p_large=options["p_large"],
-                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"]))
+                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"], kernel=options["kernel"]))
+    if options["kernel"] == "lambertian" and not lambertian_scene(scene):
+        raise ValueError(f"kernel='lambertian' needs Lambertian materials and area lights only; scene "
+                         f"{scene.name!r} has other materials, a point light or an environment map")
 
 
 register(Method("mmlt", "chain", run_batch,
