@@ -34,12 +34,24 @@ def test_state_layout_holds_three_streams():
         (slice(2, 10), slice(10, 14), slice(14, 20), 20, 21)
 
 
-def test_stratified_bootstrap_states_are_uniform_with_two_per_pixel():
-    x = stratified_states(128, 5, (8, 8), np.random.default_rng(1))
+def test_stratified_bootstrap_states_fill_every_pixel_and_each_pairs_cells():
+    """4 states per pixel (8 x 8): every pixel 4 times, and in each pixel every column pair (the
+    film position inside the pixel, each vertex's 2D sample) takes the 4 cells of a 2 x 2 grid, the
+    odd last column its 4 strata; over many draws each state's numbers are uniform (chi-square)."""
+    x = stratified_states(256, 7, (8, 8), np.random.default_rng(1))
     pix = (x[:, 1] * 8).astype(int) * 8 + (x[:, 0] * 8).astype(int)
-    assert sorted(pix) == sorted(list(range(64)) * 2)                     # every pixel twice
-    for c in range(2, 5):                                                  # Latin hypercube columns
-        assert sorted((x[:, c] * 128).astype(int)) == list(range(128))
+    assert sorted(pix) == sorted(list(range(64)) * 4)
+    inner = np.stack([x[:, 0] * 8 % 1, x[:, 1] * 8 % 1, *x[:, 2:].T], axis=1)     # film: within the pixel
+    for p in range(64):
+        u = inner[pix == p]
+        for c in (0, 2, 4):
+            cells = (u[:, c] * 2).astype(int) + 2 * (u[:, c + 1] * 2).astype(int)
+            assert sorted(cells) == [0, 1, 2, 3]
+        assert sorted((u[:, 6] * 4).astype(int)) == [0, 1, 2, 3]
+    # marginal uniformity: state 0's numbers over independent draws
+    draws = np.array([stratified_states(256, 7, (8, 8), np.random.default_rng(100 + k))[0] for k in range(400)])
+    for c in range(7):
+        assert stats.kstest(draws[:, c], "uniform").pvalue > 1e-3
 
 
 def test_mmlt_is_unbiased_against_bdpt_per_block(cornell):

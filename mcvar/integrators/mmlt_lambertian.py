@@ -189,13 +189,33 @@ def _walk(ctx, V, albedo, idx, o, d, beta, pdf_dir, ng_prev, u, cap, surface0):
 
 
 def _bsdf(albedo, mat, ng, wo, wi):
-    """Lambertian ``f(wo, wi)``, ``pdf(wo -> wi)``, ``pdf(wi -> wo)`` (world directions; the
-    general :func:`~mcvar.integrators.light._bsdf_eval` for Lambertian surfaces)."""
-    ns = normalize(np.where((_dot(ng, wo) < 0.0)[:, None], -ng, ng))
-    a, b = _dot(wo, ns), _dot(wi, ns)
+    """Lambertian ``f(wo, wi)``, ``pdf(wo -> wi)``, ``pdf(wi -> wo)`` (world directions; the general
+    :func:`~mcvar.integrators.light._bsdf_eval` for Lambertian surfaces: the shading normal is the
+    unit geometric normal turned towards ``wo``, so only the two cosines with it are needed)."""
+    dn = _dot(ng, wo)
+    sgn = np.where(dn < 0.0, -1.0, 1.0)
+    a, b = dn * sgn, _dot(wi, ng) * sgn
     ok = (a > 0.0) & (b > 0.0)
-    f = np.where(ok[:, None], albedo[mat] * _INV_PI, 0.0)
-    return f, np.where(ok, np.where(b >= 0.0, b * _INV_PI, 0.0), 0.0), np.where(ok, np.where(a >= 0.0, a * _INV_PI, 0.0), 0.0)
+    f = np.where(ok[:, None], np.take(albedo, mat, axis=0) * _INV_PI, 0.0)
+    return f, np.where(ok, b * _INV_PI, 0.0), np.where(ok, a * _INV_PI, 0.0)
+
+
+def _area_light(ctx, prim, p, w):
+    """``Le`` of light origins on triangles ``prim`` at ``p`` towards unit ``w`` and the density of
+    emitting ``w`` (``LightOrigins.light_le`` and ``light_pdf_dir`` for area lights, written out)."""
+    em, scene = ctx.em, ctx.scene
+    if np.any(prim >= scene.n_triangles) or scene.checker_period is not None:
+        none = np.full(prim.size, -1)
+        return em.light_le(none, prim, p, w), em.light_pdf_dir(none, prim, p, w)
+    c = _dot(np.take(em.triangle_normal, prim, axis=0), w)
+    two = np.take(scene.prim_two_sided_emission, prim)
+    le = np.where(((c > 0.0) | two)[:, None], np.take(scene.prim_emission, prim, axis=0), 0.0)
+    return le, np.where(two, 0.5 * np.abs(c), np.maximum(c, 0.0)) / np.pi
+
+
+def _max3(v):
+    """Row maxima of (n, 3) values (``v.max(axis=1)`` reduces slowly over a length-3 axis)."""
+    return np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
 
 
 def _mis(ctx, C, L, j, s, t, oc0, oc1, ol0, ol1):
@@ -332,7 +352,7 @@ def connect_lambertian(ctx, C, L, pixel_c, rows, s, t, depth):
         one = qj == 0
         if np.any(one):
             a = np.flatnonzero(one)
-            f[a] = em.light_le(np.full(a.size, -1), L.prim[0, rj[a]], pq[a], wi[a])
+            f[a] = _area_light(ctx, L.prim[0, rj[a]], pq[a], wi[a])[0]
         if not np.all(one):
             a = np.flatnonzero(~one)
             qa, ra = qj[a], rj[a]
@@ -359,9 +379,7 @@ def connect_lambertian(ctx, C, L, pixel_c, rows, s, t, depth):
         one = qj == 0
         if np.any(one):
             a = np.flatnonzero(one)
-            pts, pa = np.full(a.size, -1), L.prim[0, rj[a]]
-            f_q[a] = em.light_le(pts, pa, pq[a], w[a])
-            pdf_q_fwd[a] = em.light_pdf_dir(pts, pa, pq[a], w[a])
+            f_q[a], pdf_q_fwd[a] = _area_light(ctx, L.prim[0, rj[a]], pq[a], w[a])
         if not np.all(one):
             a = np.flatnonzero(~one)
             qa, ra = qj[a], rj[a]
@@ -375,7 +393,7 @@ def connect_lambertian(ctx, C, L, pixel_c, rows, s, t, depth):
                       (pq, nq, pk, nk)])
     # what carries no light is dropped; then every shadow ray in one call
     for part in parts:
-        go = np.flatnonzero(part[1].max(axis=1) > 0.0)
+        go = np.flatnonzero(_max3(part[1]) > 0.0)
         part[:7] = [a[go] if a.size else a for a in part[:7]]
         part[7] = None if part[7] is None else tuple(e[go] for e in part[7])
     shadow = [part for part in parts if part[7] is not None]
