@@ -225,14 +225,14 @@ def test_bootstrap_values_are_each_strategys_target(name):
     lay = StateLayout(depth)
     rng = np.random.default_rng(2207)
     x = stratified_states(16384, lay.dim, res, rng)
-    fb, _ = bootstrap_values(ctx, lay, x)
+    fb, _ = bootstrap_values(ctx, lay, x, kernel="general")        # BDPT's own code (the kernel: below)
     cols = strategy_columns(depth)
     j = rng.integers(0, len(cols), size=x.shape[0])               # a strategy per state
     d = np.array([cols[i][0] for i in j])
     s = np.array([cols[i][1] for i in j])
     y = x.copy()
     y[:, lay.strategy] = (s + rng.random(x.shape[0]) * (1 - 1e-9)) / (d + 1)
-    f, pixel, rgb, _ = evaluate_states(ctx, lay, y, d)
+    f, pixel, rgb, _ = evaluate_states(ctx, lay, y, d, kernel="general")
     want = fb[np.arange(x.shape[0]), j]
     assert np.count_nonzero(want) >= 50                           # the identity is not vacuous
     np.testing.assert_allclose(f, want, rtol=1e-12, atol=0.0)
