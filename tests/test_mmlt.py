@@ -164,6 +164,17 @@ def test_diagnostics_per_depth():
     assert np.all(run.b_stderr > 0) and 0 < run.acceptance_rate < 1
     lit = run.chains > 0
     assert np.all(run.tau[lit] >= 1) and np.allclose(run.ess[lit], run.chains[lit] * 32 / run.tau[lit])
+    # the mean acceptance probabilities of large and small steps: in [0, 1] where chains run; given the
+    # probabilities the accept draws are independent Bernoullis, so the realised acceptance rate is
+    # their mean to within 5 binomial standard errors
+    assert run.acceptance_large.shape == run.acceptance_small.shape == (3,)
+    assert np.all((run.acceptance_small[lit] > 0) & (run.acceptance_small[lit] <= 1))
+    assert np.all((run.acceptance_large[lit] >= 0) & (run.acceptance_large[lit] <= 1))
+    assert np.all(np.isnan(run.acceptance_small[~lit]))
+    small_only = mmlt_film(scene, (8, 8), 64, rng=3, max_depth=3, chains=128, p_large=0.0)
+    assert np.all(np.isnan(small_only.acceptance_large))
+    mix = np.nansum(small_only.acceptance_small * small_only.chains) / small_only.chains.sum()
+    assert abs(small_only.acceptance_rate - mix) < 5 * np.sqrt(mix * (1 - mix) / (128 * 32))
     # chains per depth follow b_d (largest remainders, one at least per lit depth)
     share = run.b / run.b.sum() * (128 - lit.sum())
     assert np.all(np.abs(run.chains - lit - share) < 1)

@@ -406,6 +406,10 @@ class MmltFilm:
         Over all chains and steps.
     acceptance : ndarray, shape (max_depth,)
         Per depth (NaN where no chain runs).
+    acceptance_large, acceptance_small : ndarray, shape (max_depth,)
+        Per depth, the mean acceptance probability ``min(1, f(y) / f(x))`` of the large steps
+        (fresh uniform states) and of the small steps (NaN where none was proposed): how often a
+        chain jumps elsewhere, and how often a perturbation keeps the path lit.
     tau, ess : ndarray, shape (max_depth,)
         Integrated autocorrelation time (steps) of ``f`` along the chains of
         each depth (:func:`mcvar.mcmc.integrated_time`, Sokal's window;
@@ -423,6 +427,8 @@ class MmltFilm:
     chains: np.ndarray
     acceptance_rate: float
     acceptance: np.ndarray
+    acceptance_large: np.ndarray
+    acceptance_small: np.ndarray
     tau: np.ndarray
     ess: np.ndarray
     n_steps: int
@@ -642,6 +648,7 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
 
     n_acc = 0
     acc_d = np.zeros(depth_max)
+    moves = np.zeros((2, 2, depth_max + 1))         # (large, small) x (proposals, sum of acceptance) per depth
     tau = np.full(depth_max, np.nan)
     values_d = [[] for _ in range(depth_max)]
     for a in range(0, chains, CHAIN_CHUNK):
@@ -652,6 +659,9 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
         def visit(px, py, acc_prob, fy, large, dd=dd):
             splat(px, 1.0 - acc_prob, dd)
             splat(py, acc_prob, dd)
+            for kind, sel in ((0, large), (1, ~large)):
+                moves[kind, 0] += np.bincount(dd[sel], minlength=depth_max + 1)
+                moves[kind, 1] += np.bincount(dd[sel], weights=acc_prob[sel], minlength=depth_max + 1)
 
         x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (xa, fa, pa), n_steps, (sigma, p_large),
                                     rng, visit=visit)
@@ -671,9 +681,11 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
     done = chains * n_steps
     ess = per_depth * n_steps / tau
+    with np.errstate(invalid="ignore", divide="ignore"):
+        acc_kind = np.where(moves[:, 0, 1:] > 0, moves[:, 1, 1:] / moves[:, 0, 1:], np.nan)
     return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
-                    chains=per_depth, acceptance_rate=n_acc / done, acceptance=acceptance, tau=tau, ess=ess,
-                    n_steps=n_steps)
+                    chains=per_depth, acceptance_rate=n_acc / done, acceptance=acceptance,
+                    acceptance_large=acc_kind[0], acceptance_small=acc_kind[1], tau=tau, ess=ess, n_steps=n_steps)
 
 
 def run_batch(job: BatchJob) -> BatchResult:
