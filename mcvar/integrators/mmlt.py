@@ -26,14 +26,16 @@ contribution is large, the ones that sample the path well.
 Chains run **in lockstep**: every chain proposes, every proposal is traced in
 one wavefront (a bounce iteration serves every chain whose path has that
 vertex), every chain accepts or rejects at once; chains are processed
-:data:`CHAIN_CHUNK` at a time to bound memory. One shared **bootstrap** per
-depth (``n_bootstrap`` stratified uniform states each,
-:func:`stratified_states`) estimates ``b_d`` with its standard error;
-chains are given depths in proportion to ``b_d`` (largest remainders, at
-least one chain per lit depth) and start at bootstrap states of their depth
-drawn ``∝ f_d`` (sampling-importance resampling: no start-up bias to burn
-off). The chains' large steps are uniform samples of ``f_d`` too and join
-the bootstrap's in the final ``b_d``.
+:data:`CHAIN_CHUNK` at a time to bound memory; on Lambertian scenes the
+states are evaluated by the kernel of :mod:`mcvar.integrators.mmlt_lambertian`
+(the same values, one vectorised pass over every strategy). One shared
+**bootstrap** (``n_bootstrap`` uniform states stratified per pixel,
+:func:`stratified_states`, each a BDPT sample joined in every strategy of
+every depth, :func:`bootstrap_values`) estimates every ``b_d`` with its
+standard error; chains are given depths in proportion to ``b_d`` (largest
+remainders, at least one chain per lit depth) and start at bootstrap
+candidates (state, strategy) of their depth drawn ``∝ f_d``
+(sampling-importance resampling: no start-up bias to burn off).
 
 References
 ----------
@@ -62,8 +64,8 @@ from ..tracer import Tracer
 from .bdpt import _connect_emitter, _connect_inner, _mis_weight
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult
-from .mmlt_lambertian import Workspace, connect_lambertian, lambertian_scene, trace_lambertian
 from .light import CHUNK_PATHS, PathNumbers, _connect_camera, _Context, camera_subpath, check_scene, light_subpath
+from .mmlt_lambertian import Workspace, connect_lambertian, lambertian_scene, trace_lambertian
 from .registry import Method, register
 
 __all__ = ["OPTIONS", "KERNELS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BOOTSTRAP_SHARE",
@@ -564,10 +566,11 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     p_large : float
         Probability of a large step (a fresh uniform state), in [0, 1].
     n_bootstrap : int or None
-        Bootstrap states *per depth*; None: ``max(chains, N / 2, 1024)`` for ``N`` mutations. The
-        bootstrap's error in ``b_d``, a scale on the whole depth-``d`` image, dominated the MSE on
-        cornell-door: of ``N / 20``, ``N / 5``, ``N / 2`` and ``N`` per depth, ``N / 2`` was the
-        most efficient at 128-512 mutations per pixel (docs/mcmc.md, 'MMLT').
+        Bootstrap states, each one BDPT sample joined in every strategy of every depth
+        (:func:`bootstrap_values`); None: ``max(chains, BOOTSTRAP_SHARE N, 1024)`` for ``N``
+        mutations. The bootstrap's error in ``b_d``, a scale on the whole depth-``d`` image,
+        dominates the MSE on cornell-door (about 70 % of it at ``0.2 N``); a bootstrap sample costs
+        about five mutations, and ``0.2 N`` balanced the two at equal time (docs/mcmc.md, 'MMLT').
     bootstrap : bool
         True: start the chains at bootstrap states resampled ``∝ f_d``;
         False: at uniformly drawn lit bootstrap states of their depth
@@ -720,6 +723,6 @@ def _check_options(scene, options) -> None:
 
 register(Method("mmlt", "chain", run_batch,
                 "multiplexed Metropolis light transport (Hachisuka 2014): lockstep chains on BDPT's camera, "
-                "light and strategy numbers, one MIS-weighted strategy per state, bootstrap per depth "
+                "light and strategy numbers, one MIS-weighted strategy per state, a BDPT bootstrap for every depth "
                 f"(max_depth=None: {DEFAULT_MAX_DEPTH})",
                 options=OPTIONS, check_scene=_check_options, stream_dims=0))

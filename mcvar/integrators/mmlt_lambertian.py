@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..bsdf import Lambertian
-from ..geometry import Frame, normalize
+from ..geometry import Frame
 from ..envmap import LUMINANCE_WEIGHTS
 from ..warps import _square_to_cosine_hemisphere_unchecked
 
