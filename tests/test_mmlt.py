@@ -8,8 +8,8 @@ from mcvar.integrators.bdpt import BDPTSettings, bdpt_contributions
 from mcvar.integrators.emitters import LightOrigins
 from mcvar.integrators.light import _Context
 from mcvar.integrators.mmlt_lambertian import Workspace
-from mcvar.integrators.mmlt import (MmltSettings, StateLayout, bootstrap_values, evaluate_states, lockstep, mmlt_film,
-                                    strategy_columns, stratified_states)
+from mcvar.integrators.mmlt import MmltSettings, StateLayout, lockstep, mmlt_film, stratified_states
+from mcvar.integrators.mmlt_states import bootstrap_values, evaluate_states, strategy_columns
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
 

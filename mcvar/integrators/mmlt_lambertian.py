@@ -1,6 +1,6 @@
 """MMLT's states evaluated in one pass on Lambertian scenes (layer 5): the kernel of ``mmlt``.
 
-:func:`mcvar.integrators.mmlt.evaluate_states` runs BDPT's own code
+:func:`mcvar.integrators.mmlt_states.evaluate_states` runs BDPT's own code
 (:mod:`mcvar.integrators.bdpt`): one call of the strategy's connection per
 ``(s, t)`` group of states, each a few hundred NumPy passes, and the general
 random walk with its material loop. A chain step at depth 5 has 20 such
@@ -23,7 +23,7 @@ values with BDPT's formulas written out once for all strategies:
   each state's own connection, with the two densities next to it on either
   side replaced by the connection's (pbrt's scoped assignments).
 
-The values are :func:`~mcvar.integrators.mmlt.evaluate_states`' to rounding
+The values are :func:`~mcvar.integrators.mmlt_states.evaluate_states`' to rounding
 (``tests/test_mmlt.py``: an exact identity on the door and the Cornell box),
 so the kernel is a faster route to one target, not a second estimator.
 
@@ -319,7 +319,7 @@ def connect_lambertian(ctx, C, L, pixel_c, rows, s, t, depth):
     """BDPT's connection of strategy ``(s[j], t[j])`` at depth ``depth[j]`` for every ``j`` at once,
     on the subpaths ``rows[j]`` of ``C`` and ``L`` (:func:`trace_lambertian`), weighted by the MIS
     weight: ``(f, pixel, rgb, rays)`` with ``rgb = (d + 1) w_{s,t} C_{s,t}``, as
-    :func:`~mcvar.integrators.mmlt.evaluate_states`."""
+    :func:`~mcvar.integrators.mmlt_states.evaluate_states`."""
     em, cam, res = ctx.em, ctx.scene.camera, ctx.res
     albedo = np.array([mt.albedo for mt in ctx.scene.materials])
     n = rows.size
