@@ -254,12 +254,13 @@ def test_bootstrap_values_are_each_strategys_target(name):
         assert fb[:, mine].min() >= 0.0
 
 
-@pytest.mark.parametrize("name", ["cornell", "cornell-door"])
+@pytest.mark.parametrize("name", ["cornell", "cornell-door", "checkerboard", "furnace"])
 def test_lambertian_kernel_is_the_general_evaluation(name):
     """The Lambertian kernel (one vectorised pass over every strategy) against BDPT's own
     connections, state by state: the same f, pixel and rgb to rounding, for single states at every
     depth and strategy and for the bootstrap's every-strategy rows (an exact identity: the same
-    paths, the same formulas written out)."""
+    paths, the same formulas written out); the checkerboard's textured emitter and the furnace's
+    spheres take the kernel's general fallbacks."""
     scene = load_scene(name)
     res, depth = (8, 8), 5
     ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
