@@ -344,6 +344,20 @@ def _allocate(b, chains):
     return c + lit
 
 
+def _per_depth(values_d, acc_d, n_steps):
+    """Acceptance rate and ``tau`` per depth from the chains' values (lists of (n_steps, chains_d)
+    blocks per depth) and accepted moves; NaN where no chain ran, ``tau`` NaN below :data:`MIN_TAU_STEPS`."""
+    depths = len(values_d)
+    acceptance, tau = np.full(depths, np.nan), np.full(depths, np.nan)
+    for d in range(depths):
+        if values_d[d]:
+            v = np.concatenate(values_d[d], axis=1)
+            if n_steps >= MIN_TAU_STEPS:
+                tau[d] = max(integrated_time(v)[0], 1.0)
+            acceptance[d] = acc_d[d] / v.size
+    return acceptance, tau
+
+
 def _check(opts: MmltSettings):
     """Every setting's type and value (a ValueError or TypeError naming it)."""
     depth = check_count(opts.max_depth, "max_depth")
@@ -479,7 +493,6 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     n_acc = 0
     acc_d = np.zeros(depth_max)
     moves = np.zeros((2, 2, depth_max + 1))         # (large, small) x (proposals, sum of acceptance) per depth
-    tau = np.full(depth_max, np.nan)
     values_d = [[] for _ in range(depth_max)]
     for a in range(0, chains, CHAIN_CHUNK):
         dd = dep[a:a + CHAIN_CHUNK]
@@ -501,13 +514,7 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
             if cols.size:
                 values_d[d].append(values[:, cols])
                 acc_d[d] += n[cols].sum()
-    acceptance = np.full(depth_max, np.nan)
-    for d in range(depth_max):
-        if values_d[d]:
-            v = np.concatenate(values_d[d], axis=1)
-            if n_steps >= MIN_TAU_STEPS:
-                tau[d] = max(integrated_time(v)[0], 1.0)
-            acceptance[d] = acc_d[d] / v.size
+    acceptance, tau = _per_depth(values_d, acc_d, n_steps)
     image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
     done = chains * n_steps
     ess = per_depth * n_steps / tau

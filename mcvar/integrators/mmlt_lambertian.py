@@ -120,14 +120,18 @@ def _normals(tracer, prim, p):
     return np.ascontiguousarray(tracer.normals(prim, p.T).T)
 
 
-def _walk(ctx, V, albedo, idx, o, d, beta, pdf_dir, ng_prev, u, cap, surface0):
-    """Extend the subpaths ``idx`` from vertex 0 by cosine sampling (the general walk's
-    :func:`~mcvar.integrators.light._walk` for Lambertian surfaces), structure of arrays:
-    ``o, d, beta`` (3, n) the rays leaving vertex 0 and their throughput, ``ng_prev`` (3, n) the
-    normal at vertex 0 (a surface when ``surface0``: a light; else the pinhole); vertex ``i``
-    exists where ``i < cap``; ``u`` (m, 2 k) the BSDF numbers per vertex, ``albedo`` (3, M).
-    Returns the rays traced."""
+def _walk(ctx, V, albedo, start, numbers):
+    """Extend subpaths from vertex 0 by cosine sampling (the general walk's
+    :func:`~mcvar.integrators.light._walk` for Lambertian surfaces), structure of arrays.
+
+    ``start = (idx, o, d, beta, pdf_dir, ng_prev)``: the paths, the rays (3, n) leaving their
+    vertex 0 with solid-angle density ``pdf_dir``, their throughput (3, n) and the normal (3, n) at
+    vertex 0; ``numbers = (u, cap, surface0)``: the BSDF numbers per vertex (m, 2 k), the vertex
+    cap per path (vertex ``i`` exists where ``i < cap``) and whether vertex 0 is a surface (a
+    light) rather than the pinhole. ``albedo`` (3, M). Returns the rays traced."""
     scene, tracer, eps = ctx.scene, ctx.tracer, ctx.eps
+    idx, o, d, beta, pdf_dir, ng_prev = start
+    u, cap, surface0 = numbers
     go = np.flatnonzero(cap[idx] > 1)
     if go.size < idx.size:
         idx, o, d, beta, pdf_dir, ng_prev = _keep(go, idx, o, d, beta, pdf_dir, ng_prev)
@@ -218,11 +222,13 @@ def _max3(v):
     return np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
 
 
-def _mis(ctx, C, L, j, s, t, oc0, oc1, ol0, ol1):
+def _mis(ctx, C, L, j, s, t, over):
     """Veach's MIS weight ``1 / (1 + sum_i r_i^beta)`` of each state's strategy (``bdpt._mis_weight``):
     the camera side walks ``i = t - 1 .. 1``, the light side ``i = s - 1 .. 0``, on subpaths ``j``;
-    ``oc0, oc1`` replace ``pdf_rev`` at camera vertices ``t - 1, t - 2``, ``ol0, ol1`` at light
-    vertices ``s - 1, s - 2`` (pbrt's scoped assignments). The sum runs in BDPT's order."""
+    ``over = (oc0, oc1, ol0, ol1)``: ``oc0, oc1`` replace ``pdf_rev`` at camera vertices ``t - 1,
+    t - 2``, ``ol0, ol1`` at light vertices ``s - 1, s - 2`` (pbrt's scoped assignments). The sum
+    runs in BDPT's order."""
+    oc0, oc1, ol0, ol1 = over
     m = j.size
     total = np.ones(m)
     with np.errstate(all="ignore"):          # entries of states off a step are unset memory, masked
@@ -294,8 +300,8 @@ def trace_lambertian(ctx, layout, x, cam_cap, light_cap, work: Workspace | None 
         d = cam.ray_directions_soa(res, pixel[cj], offsets)
         pdf_dir = cam.pdf_We(np.ascontiguousarray(d.T), res)[1]
         o = np.repeat(np.asarray(cam.position, dtype=np.float64)[:, None], cj.size, axis=1)
-        rays += _walk(ctx, C, albedo, cj, o, d, np.ones((3, cj.size)), pdf_dir, np.zeros((3, cj.size)),
-                      x[:, layout.camera_vertices], cam_cap, False)
+        rays += _walk(ctx, C, albedo, (cj, o, d, np.ones((3, cj.size)), pdf_dir, np.zeros((3, cj.size))),
+                      (x[:, layout.camera_vertices], cam_cap, False))
     L = work.vertices("light", max(int(light_cap.max(initial=1)), 1), m)
     lj = np.flatnonzero(light_cap >= 1)
     if lj.size:
@@ -309,9 +315,9 @@ def trace_lambertian(ctx, layout, x, cam_cap, light_cap, work: Workspace | None 
             beta1 = org["le"] * np.where((org["pdf_dir"] > 0) & (org["pdf_pos"] > 0),
                                          org["cos"] / (org["pdf_pos"] * org["pdf_dir"]), 0.0)[:, None]
         o = org["p"] + org["n"] * ctx.eps
-        rays += _walk(ctx, L, albedo, lj, np.ascontiguousarray(o.T), np.ascontiguousarray(org["w"].T),
-                      np.ascontiguousarray(beta1.T), org["pdf_dir"], np.ascontiguousarray(org["n"].T),
-                      x[:, layout.light_vertices], light_cap, True)
+        start = (lj, np.ascontiguousarray(o.T), np.ascontiguousarray(org["w"].T), np.ascontiguousarray(beta1.T),
+                 org["pdf_dir"], np.ascontiguousarray(org["n"].T))
+        rays += _walk(ctx, L, albedo, start, (x[:, layout.light_vertices], light_cap, True))
     return C, L, pixel, rays
 
 
@@ -415,7 +421,7 @@ def connect_lambertian(ctx, C, L, pixel_c, rows, s, t, depth):
     pixel = np.full(n, -1, dtype=np.intp)
     for j, value, pix, oc0, oc1, ol0, ol1, _ in parts:
         if j.size:
-            weight = _mis(ctx, C, L, rows[j], s[j], t[j], oc0, oc1, ol0, ol1)
+            weight = _mis(ctx, C, L, rows[j], s[j], t[j], (oc0, oc1, ol0, ol1))
             rgb[j] = value * (weight * (depth[j] + 1))[:, None]
             pixel[j] = pix
     f = rgb @ _LUM
