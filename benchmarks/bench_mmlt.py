@@ -68,13 +68,19 @@ def _render(scene, method, spp, res, depth, seed, options):
 
 
 def calibrate(scene, method, res, depth, seconds, options):
-    """spp that takes about ``seconds`` (from a pilot at a quarter of a first guess)."""
-    spp = 16
+    """spp that takes about ``seconds``: pilots doubling the spp until one takes a third of it (a
+    chain method's bootstrap has a floor, ``n_bootstrap >= chains``, that a shorter pilot overweights),
+    then the time per spp of the last two pilots' difference (that floor cancels)."""
+    spp, last = 16, None
     r = _render(scene, method, spp, res, depth, 1, options)
-    while r.seconds < 0.2 * seconds and spp < 1 << 16:
-        spp *= 4
+    while r.seconds < seconds / 3 and spp < 1 << 16:
+        last = (spp, r.seconds)
+        spp *= 2
         r = _render(scene, method, spp, res, depth, 1, options)
-    return max(1, int(spp * seconds / r.seconds))
+    if last is None or r.seconds <= last[1]:
+        return max(1, int(spp * seconds / r.seconds))
+    per_spp = (r.seconds - last[1]) / (spp - last[0])
+    return max(1, int(spp + (seconds - r.seconds) / per_spp))
 
 
 def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):

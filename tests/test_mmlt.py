@@ -6,7 +6,10 @@ from scipy import stats
 from mcvar.integrators import render
 from mcvar.integrators.bdpt import BDPTSettings, bdpt_contributions
 from mcvar.integrators.emitters import LightOrigins
+from mcvar.integrators.light import _Context
+from mcvar.integrators.mmlt_lambertian import Workspace
 from mcvar.integrators.mmlt import MmltSettings, StateLayout, lockstep, mmlt_film, stratified_states
+from mcvar.integrators.mmlt_states import bootstrap_values, evaluate_states, strategy_columns
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
 
@@ -31,14 +34,24 @@ def test_state_layout_holds_three_streams():
         (slice(2, 10), slice(10, 14), slice(14, 20), 20, 21)
 
 
-def test_stratified_bootstrap_states_are_uniform_with_two_per_pixel():
-    x = stratified_states(128, 5, (8, 8), np.random.default_rng(1))
+def test_stratified_bootstrap_states_fill_every_pixel_and_each_pairs_cells():
+    """4 states per pixel (8 x 8): every pixel 4 times, and in each pixel every column pair (the
+    film position inside the pixel, each vertex's 2D sample) takes the 4 cells of a 2 x 2 grid, the
+    odd last column its 4 strata; over many draws each state's numbers are uniform (chi-square)."""
+    x = stratified_states(256, 7, (8, 8), np.random.default_rng(1))
     pix = (x[:, 1] * 8).astype(int) * 8 + (x[:, 0] * 8).astype(int)
-    assert sorted(pix) == sorted(list(range(64)) * 2)                     # every pixel twice
-    for c in range(2, 4):                                                  # Latin hypercube columns
-        assert sorted((x[:, c] * 128).astype(int)) == list(range(128))
-    for p in range(64):                                                    # strategy: both halves per pixel
-        assert sorted((x[pix == p, 4] * 2).astype(int)) == [0, 1]
+    assert sorted(pix) == sorted(list(range(64)) * 4)
+    inner = np.stack([x[:, 0] * 8 % 1, x[:, 1] * 8 % 1, *x[:, 2:].T], axis=1)     # film: within the pixel
+    for p in range(64):
+        u = inner[pix == p]
+        for c in (0, 2, 4):
+            cells = (u[:, c] * 2).astype(int) + 2 * (u[:, c + 1] * 2).astype(int)
+            assert sorted(cells) == [0, 1, 2, 3]
+        assert sorted((u[:, 6] * 4).astype(int)) == [0, 1, 2, 3]
+    # marginal uniformity: state 0's numbers over independent draws
+    draws = np.array([stratified_states(256, 7, (8, 8), np.random.default_rng(100 + k))[0] for k in range(400)])
+    for c in range(7):
+        assert stats.kstest(draws[:, c], "uniform").pvalue > 1e-3
 
 
 def test_mmlt_is_unbiased_against_bdpt_per_block(cornell):
@@ -151,6 +164,17 @@ def test_diagnostics_per_depth():
     assert np.all(run.b_stderr > 0) and 0 < run.acceptance_rate < 1
     lit = run.chains > 0
     assert np.all(run.tau[lit] >= 1) and np.allclose(run.ess[lit], run.chains[lit] * 32 / run.tau[lit])
+    # the mean acceptance probabilities of large and small steps: in [0, 1] where chains run; given the
+    # probabilities the accept draws are independent Bernoullis, so the realised acceptance rate is
+    # their mean to within 5 binomial standard errors
+    assert run.acceptance_large.shape == run.acceptance_small.shape == (3,)
+    assert np.all((run.acceptance_small[lit] > 0) & (run.acceptance_small[lit] <= 1))
+    assert np.all((run.acceptance_large[lit] >= 0) & (run.acceptance_large[lit] <= 1))
+    assert np.all(np.isnan(run.acceptance_small[~lit]))
+    small_only = mmlt_film(scene, (8, 8), 64, rng=3, max_depth=3, chains=128, p_large=0.0)
+    assert np.all(np.isnan(small_only.acceptance_large))
+    mix = np.nansum(small_only.acceptance_small * small_only.chains) / small_only.chains.sum()
+    assert abs(small_only.acceptance_rate - mix) < 5 * np.sqrt(mix * (1 - mix) / (128 * 32))
     # chains per depth follow b_d (largest remainders, one at least per lit depth)
     share = run.b / run.b.sum() * (128 - lit.sum())
     assert np.all(np.abs(run.chains - lit - share) < 1)
@@ -197,3 +221,73 @@ def test_start_up_bias_is_removed_by_the_bootstrap(cornell):
         share[boot] = (np.mean(vals), np.std(vals, ddof=1) / np.sqrt(6))
     assert abs(share[True][0] - truth) < 5 * share[True][1], (share, truth)
     assert share[False][0] - truth > 5 * share[False][1], (share, truth)
+
+
+@pytest.mark.parametrize("name", ["cornell-door", "cornell-point", "quad-environment", "cornell-caustic"])
+def test_bootstrap_values_are_each_strategys_target(name):
+    """An exact identity between two evaluations of f_d: ``bootstrap_values`` (one BDPT sample per
+    state, full-length subpaths joined in every way) and ``evaluate_states`` (one strategy per state,
+    every subpath traced only as long as its strategy needs, all of them in one wavefront). The
+    shorter subpaths are prefixes of the longer ones (no Russian roulette), so each state's value
+    must be its column's to rounding, on area, point and environment lights and on glass."""
+    scene = load_scene(name)
+    res, depth = (8, 8), 4
+    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
+    lay = StateLayout(depth)
+    rng = np.random.default_rng(2207)
+    x = stratified_states(16384, lay.dim, res, rng)
+    fb, _ = bootstrap_values(ctx, lay, x, kernel="general")        # BDPT's own code (the kernel: below)
+    cols = strategy_columns(depth)
+    j = rng.integers(0, len(cols), size=x.shape[0])               # a strategy per state
+    d = np.array([cols[i][0] for i in j])
+    s = np.array([cols[i][1] for i in j])
+    y = x.copy()
+    y[:, lay.strategy] = (s + rng.random(x.shape[0]) * (1 - 1e-9)) / (d + 1)
+    f, pixel, rgb, _ = evaluate_states(ctx, lay, y, d, kernel="general")
+    want = fb[np.arange(x.shape[0]), j]
+    assert np.count_nonzero(want) >= 50                           # the identity is not vacuous
+    np.testing.assert_allclose(f, want, rtol=1e-12, atol=0.0)
+    assert np.all((pixel >= 0) == (f > 0)) and np.allclose(rgb @ LUM, f, rtol=1e-12)
+    # and BDPT's estimate of b_d from the columns is the mean of one-strategy states x (d + 1) / (d + 1)
+    for dd in range(1, depth + 1):
+        mine = [i for i, c in enumerate(cols) if c[0] == dd]
+        assert fb[:, mine].min() >= 0.0
+
+
+@pytest.mark.parametrize("name", ["cornell", "cornell-door", "checkerboard", "furnace"])
+def test_lambertian_kernel_is_the_general_evaluation(name):
+    """The Lambertian kernel (one vectorised pass over every strategy) against BDPT's own
+    connections, state by state: the same f, pixel and rgb to rounding, for single states at every
+    depth and strategy and for the bootstrap's every-strategy rows (an exact identity: the same
+    paths, the same formulas written out); the checkerboard's textured emitter and the furnace's
+    spheres take the kernel's general fallbacks."""
+    scene = load_scene(name)
+    res, depth = (8, 8), 5
+    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
+    lay = StateLayout(depth)
+    rng = np.random.default_rng(2208)
+    x = stratified_states(16384, lay.dim, res, rng)
+    d = rng.integers(1, depth + 1, size=x.shape[0])
+    f, pixel, rgb, _ = evaluate_states(ctx, lay, x, d, kernel="general")
+    g, pixel_g, rgb_g, _ = evaluate_states(ctx, lay, x, d, kernel="lambertian", work=Workspace())
+    assert np.count_nonzero(f) >= 50
+    np.testing.assert_allclose(g, f, rtol=1e-12, atol=0.0)
+    np.testing.assert_array_equal(pixel_g, pixel)
+    np.testing.assert_allclose(rgb_g, rgb, rtol=1e-12, atol=0.0)
+    work = Workspace()
+    for _ in range(2):                      # reused buffers (the chains' steps) give the same values
+        fb = bootstrap_values(ctx, lay, x[:4096], kernel="lambertian", work=work)[0]
+        np.testing.assert_allclose(fb, bootstrap_values(ctx, lay, x[:4096], kernel="general")[0], rtol=1e-12,
+                                   atol=0.0)
+
+
+def test_kernel_option_is_checked():
+    with pytest.raises(ValueError, match="kernel"):
+        render(load_scene("cornell"), method="mmlt", spp=1, res=4, kernel="fast")
+    with pytest.raises(ValueError, match="kernel='lambertian'"):
+        render(load_scene("cornell-spheres"), method="mmlt", spp=1, res=4, kernel="lambertian")
+    scene = load_scene("cornell")
+    kw = dict(method="mmlt", spp=4, res=8, rng=2209, max_depth=3, chains=64, n_bootstrap=2048, batch_spp=4)
+    a = render(scene, kernel="general", **kw).image
+    b = render(scene, kernel="lambertian", **kw).image
+    np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-15)   # the same chains: the kernel changes no value

@@ -247,11 +247,16 @@ class PathNumbers:
     vertices : ndarray, shape (n, 2 k)
         Columns ``2 (i - 1), 2 (i - 1) + 1``: the BSDF sample of vertex ``i``
         (``i = 1 .. k``) of path ``j`` in row ``j``.
+    cap : ndarray of int, shape (n,), optional
+        The most vertices path ``j`` may have (at most the walk's
+        ``max_vertices``): MMLT traces the subpaths of states with different
+        strategies in one wavefront, each only as long as its strategy needs.
     """
 
-    def __init__(self, origin, vertices):
+    def __init__(self, origin, vertices, cap=None):
         self.origin = origin
         self.vertices = vertices
+        self.cap = cap
 
     def random(self, shape):
         if self.origin is None or tuple(shape) != self.origin.shape:
@@ -298,6 +303,9 @@ def _walk(ws: _Walk, lev, first, o, d, beta, pdf_dir, rng):
     scale = np.maximum(beta.max(axis=1), 1e-300)      # roulette on beta relative to its start
     rays = 0
     i = first
+    if isinstance(rng, PathNumbers) and rng.cap is not None:      # paths already at their cap trace nothing
+        go = np.flatnonzero(rng.cap > first)
+        idx, o, d, beta, pdf_dir, prev_delta, scale = (a[go] for a in (idx, o, d, beta, pdf_dir, prev_delta, scale))
     while idx.size and i < max_vertices:
         t, prim = tracer.closest_soa(np.ascontiguousarray(o.T), np.ascontiguousarray(d.T))
         rays += idx.size
@@ -336,6 +344,14 @@ def _walk(ws: _Walk, lev, first, o, d, beta, pdf_dir, rng):
         cur["pdf_fwd"][rows] = np.where(prev_delta, 1.0, pdf_dir * np.abs(_dot(ng, d)) / (t * t))
         if i + 1 >= max_vertices:
             break
+        if isinstance(rng, PathNumbers) and rng.cap is not None:     # paths at their own cap end here
+            go = np.flatnonzero(rng.cap[idx] > i + 1)
+            if go.size < idx.size:
+                idx, d, beta, pdf_dir, prev_delta, scale, t, p, ng, mat = (
+                    a[go] for a in (idx, d, beta, pdf_dir, prev_delta, scale, t, p, ng, mat))
+                rows = lev.pos[i][idx]
+                if idx.size == 0:
+                    break
         # scatter: sample the BSDF at vertex i
         wo = -d
         fr = Frame(_shading_normals(flips, mat, ng, wo))

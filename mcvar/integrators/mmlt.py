@@ -26,14 +26,16 @@ contribution is large, the ones that sample the path well.
 Chains run **in lockstep**: every chain proposes, every proposal is traced in
 one wavefront (a bounce iteration serves every chain whose path has that
 vertex), every chain accepts or rejects at once; chains are processed
-:data:`CHAIN_CHUNK` at a time to bound memory. One shared **bootstrap** per
-depth (``n_bootstrap`` stratified uniform states each,
-:func:`stratified_states`) estimates ``b_d`` with its standard error;
-chains are given depths in proportion to ``b_d`` (largest remainders, at
-least one chain per lit depth) and start at bootstrap states of their depth
-drawn ``∝ f_d`` (sampling-importance resampling: no start-up bias to burn
-off). The chains' large steps are uniform samples of ``f_d`` too and join
-the bootstrap's in the final ``b_d``.
+:data:`CHAIN_CHUNK` at a time to bound memory; on Lambertian scenes the
+states are evaluated by the kernel of :mod:`mcvar.integrators.mmlt_lambertian`
+(the same values, one vectorised pass over every strategy). One shared
+**bootstrap** (``n_bootstrap`` uniform states stratified per pixel,
+:func:`stratified_states`, each a BDPT sample joined in every strategy of
+every depth, :func:`bootstrap_values`) estimates every ``b_d`` with its
+standard error; chains are given depths in proportion to ``b_d`` (largest
+remainders, at least one chain per lit depth) and start at bootstrap
+candidates (state, strategy) of their depth drawn ``∝ f_d``
+(sampling-importance resampling: no start-up bias to burn off).
 
 References
 ----------
@@ -59,21 +61,23 @@ from ..envmap import LUMINANCE_WEIGHTS
 from ..mcmc import check_walk_budget, integrated_time
 from ..scene import Scene
 from ..tracer import Tracer
-from .bdpt import _connect_emitter, _connect_inner, _mis_weight
 from .emitters import LightOrigins
 from .film import BatchJob, BatchResult
-from .light import CHUNK_PATHS, PathNumbers, _connect_camera, _Context, camera_subpath, check_scene, light_subpath
+from .light import CHUNK_PATHS, _Context, check_scene
+from .mmlt_lambertian import Workspace, lambertian_scene
+from .mmlt_states import KERNELS, _kernel, bootstrap_values, evaluate_states, strategy_columns
 from .registry import Method, register
 
-__all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "MIN_TAU_STEPS", "MmltSettings", "MmltFilm", "StateLayout",
-           "mmlt_film", "stratified_states", "evaluate_states", "kelemen_mutate", "lockstep",
+__all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BOOTSTRAP_SHARE", "MIN_TAU_STEPS",
+           "MmltSettings", "MmltFilm", "StateLayout", "mmlt_film", "stratified_states", "kelemen_mutate", "lockstep",
            "run_batch"]
 
 #: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
 #: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
 #: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`)
 #: and whether the chains start from the bootstrap (False: start-up bias).
-OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True}
+OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True,
+           "kernel": "auto"}
 
 #: The depth (segments) a render with ``max_depth=None`` uses: the state has a
 #: fixed size, so MMLT needs a finite depth (pbrt-v4's ``maxdepth`` 5 bounces
@@ -81,8 +85,12 @@ OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, 
 #: and two bounces in the room).
 DEFAULT_MAX_DEPTH = 5
 
-#: Fewest bootstrap states per depth by default (a small render still finds lit paths).
+#: Fewest bootstrap states by default (a small render still finds lit paths).
 MIN_BOOTSTRAP = 1024
+
+#: Bootstrap states per mutation by default (``n_bootstrap=None``; each state is one BDPT sample
+#: that serves every depth: docs/mcmc.md, 'MMLT').
+BOOTSTRAP_SHARE = 0.2
 
 #: Steps per chain below which no autocorrelation time is reported (NaN):
 #: Sokal's window needs chains longer than a few ``tau``.
@@ -90,6 +98,10 @@ MIN_TAU_STEPS = 16
 
 #: Chains stepped at once (one wavefront); more are run chunk after chunk.
 CHAIN_CHUNK = CHUNK_PATHS
+
+#: Bootstrap states evaluated at once: each is joined in every strategy of every depth (20 at depth 5),
+#: so a chunk holds 20x as many connections as states.
+BOOTSTRAP_CHUNK = 8192
 
 _LUM = np.asarray(LUMINANCE_WEIGHTS)
 
@@ -129,100 +141,6 @@ class StateLayout:
         return self.strategy + 1
 
 
-class _Rows:
-    """A subpath's ``(depth, n)`` field seen through a map of rows (``a[i, idx] = base[i, rows[idx]]``)."""
-
-    __slots__ = ("base", "rows")
-
-    def __init__(self, base, rows):
-        self.base, self.rows = base, rows
-
-    def __getitem__(self, key):
-        i, idx = key
-        return self.base[i, self.rows[idx]]
-
-
-class _Subset:
-    """The paths ``rows`` of a :class:`~mcvar.integrators.light.Subpath`, renumbered ``0 .. len(rows) - 1``
-    (the chains of one strategy among those traced with the same number of vertices)."""
-
-    def __init__(self, sub, rows):
-        self._sub, self._rows = sub, rows
-        self.length = sub.length[rows]
-        self.point = sub.point[rows]
-        self.pixel = sub.pixel[rows]
-
-    def __getattr__(self, name):
-        return _Rows(getattr(self._sub, name), self._rows)
-
-
-def evaluate_states(ctx, layout: StateLayout, x: np.ndarray, depth: np.ndarray):
-    """The target and the splat of each state: ``(f (m,), pixel (m,), rgb (m, 3), rays)``.
-
-    State ``x[j]`` at depth ``depth[j]`` picks strategy ``s = floor(u (d + 1))``
-    (``u`` its connection number), ``t = d + 1 - s``; the camera subpath of
-    ``t`` vertices and the light subpath of ``s`` vertices are traced from its
-    streams (:class:`~mcvar.integrators.light.PathNumbers`), all states with
-    the same ``t`` (``s``) in one wavefront, and joined by BDPT's connection
-    of that strategy, weighted by BDPT's MIS weight (:func:`~mcvar.integrators.bdpt._mis_weight`).
-    ``rgb = (d + 1) w_{s,t} C_{s,t}`` (0 for paths that carry no light, with
-    ``pixel = -1``), ``f = Y(rgb)``. ``E f = b_d`` for uniform states.
-    """
-    scene, tracer, res = ctx.scene, ctx.tracer, ctx.res
-    width, height = res
-    m = x.shape[0]
-    n_strat = depth + 1
-    s = np.minimum((x[:, layout.strategy] * n_strat).astype(np.intp), depth)
-    t = n_strat - s
-    rgb = np.zeros((m, 3))
-    pixel = np.full(m, -1, dtype=np.intp)
-    rays = 0
-    cams, lights = {}, {}
-    for tv in np.unique(t[t >= 2]):
-        rows = np.flatnonzero(t == tv)
-        u = x[rows]
-        col = np.minimum((u[:, 0] * width).astype(np.intp), width - 1)
-        row = np.minimum((u[:, 1] * height).astype(np.intp), height - 1)
-        offsets = np.stack([u[:, 0] * width - col, u[:, 1] * height - row], axis=1)
-        numbers = PathNumbers(None, u[:, layout.camera_vertices])
-        C = camera_subpath(scene, tracer, res, row * width + col, offsets, int(tv), numbers, roulette=False)
-        rays += C.rays
-        cams[int(tv)] = (rows, C)
-    for sv in np.unique(s[s >= 1]):
-        rows = np.flatnonzero(s == sv)
-        u = x[rows]
-        numbers = PathNumbers(np.ascontiguousarray(u[:, layout.light_origin]), u[:, layout.light_vertices])
-        L = light_subpath(scene, tracer, ctx.em, rows.size, int(sv), numbers, roulette=False)
-        rays += L.rays
-        lights[int(sv)] = (rows, L)
-    for sv, tv in sorted(set(zip(s.tolist(), t.tolist()))):
-        grp = np.flatnonzero((s == sv) & (t == tv))
-        Lg = Cg = None
-        if sv >= 1:
-            rows, L = lights[sv]
-            Lg = _Subset(L, np.searchsorted(rows, grp))
-        if tv >= 2:
-            rows, C = cams[tv]
-            Cg = _Subset(C, np.searchsorted(rows, grp))
-        if (Lg is not None and not np.any(Lg.length >= sv)) or (Cg is not None and not np.any(Cg.length >= tv)):
-            continue                                  # no path of the group has the vertices
-        if tv == 1:
-            k, pix, value, weight = _connect_camera(ctx, Lg, sv, _mis_weight)
-            rays += k.size
-        elif sv == 0:
-            k, value, weight = _connect_emitter(ctx, Cg, tv)
-            pix = Cg.pixel[k]
-        else:
-            k, value, weight = _connect_inner(ctx, Lg, Cg, sv, tv)
-            rays += k.size
-            pix = Cg.pixel[k]
-        rgb[grp[k]] = value * (weight * n_strat[grp[k]])[:, None]
-        pixel[grp[k]] = pix
-    f = rgb @ _LUM
-    pixel[f <= 0.0] = -1
-    return f, pixel, rgb, rays
-
-
 def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
     """Kelemen's mutation of every chain: ``(y, large)``.
 
@@ -233,7 +151,10 @@ def kelemen_mutate(x: np.ndarray, sigma: float, p_large: float, rng):
     the uniform density: MMLT adds it to the bootstrap's estimate of ``b``
     (Kelemen et al. 2002, section 4).
     """
-    y = x + rng.normal(0.0, sigma, size=x.shape)
+    # float32 normals (half the generator's time); their law is symmetric, so is the step
+    y = rng.standard_normal(x.shape, dtype=np.float32)
+    y *= np.float32(sigma)
+    y = x + y
     y -= np.floor(y)
     large = rng.random(x.shape[0]) < p_large if p_large > 0.0 else np.zeros(x.shape[0], dtype=bool)
     k = int(large.sum())
@@ -291,6 +212,7 @@ class MmltSettings:
     p_large: float = OPTIONS["p_large"]
     n_bootstrap: int | None = OPTIONS["n_bootstrap"]
     bootstrap: bool = OPTIONS["bootstrap"]
+    kernel: str = OPTIONS["kernel"]
 
 
 @dataclass(frozen=True)
@@ -313,6 +235,10 @@ class MmltFilm:
         Over all chains and steps.
     acceptance : ndarray, shape (max_depth,)
         Per depth (NaN where no chain runs).
+    acceptance_large, acceptance_small : ndarray, shape (max_depth,)
+        Per depth, the mean acceptance probability ``min(1, f(y) / f(x))`` of the large steps
+        (fresh uniform states) and of the small steps (NaN where none was proposed): how often a
+        chain jumps elsewhere, and how often a perturbation keeps the path lit.
     tau, ess : ndarray, shape (max_depth,)
         Integrated autocorrelation time (steps) of ``f`` along the chains of
         each depth (:func:`mcvar.mcmc.integrated_time`, Sokal's window;
@@ -330,59 +256,79 @@ class MmltFilm:
     chains: np.ndarray
     acceptance_rate: float
     acceptance: np.ndarray
+    acceptance_large: np.ndarray
+    acceptance_small: np.ndarray
     tau: np.ndarray
     ess: np.ndarray
     n_steps: int
 
 
 def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
-    """``n`` bootstrap states, each uniform on ``[0, 1)^dim``, stratified.
+    """``n`` bootstrap states, each uniform on ``[0, 1)^dim``, stratified per pixel.
 
-    The film position (columns 0, 1) is jittered per pixel (state ``i`` in
-    pixel ``perm(i mod n_pix)``), every other column is a Latin hypercube
-    column (``(perm + U) / n``) but the last (MMLT's strategy number), which
-    is stratified inside each pixel (a pixel's ``k`` states spread over
-    ``k`` strata in random order: its strategies evenly). Each state is marginally uniform, so
-    ``mean f`` stays an unbiased estimate of ``b`` and resampling ``∝ f``
-    still starts the chains near ``f / b``; the variance of ``b`` from
-    *which pixel* a state lands in is gone (on the door scene the slit's
-    pixels are 1 % of the image and hold half its light: with iid states,
-    ``b_2`` had a 15 % standard error from 16 384 states).
+    State ``i`` lies in pixel ``perm(i mod n_pix)`` (every pixel gets ``n / n_pix`` states, to one),
+    and inside its pixel each pair of columns ``(0, 1), (2, 3), ...`` (the film position, then a
+    2D sample per vertex and the light origin's position and direction) is stratified on a ``g x g``
+    grid, ``g = ceil(sqrt(k))`` for ``k`` states per pixel: the pixel's states take ``k`` distinct
+    cells drawn at random, jittered, independently per pair (padded 2D stratification, Kollig and
+    Keller 2002); a last single column (the strategy number) is stratified in ``k`` strata per
+    pixel. Each state is marginally uniform (every cell is equally likely), so ``mean f`` stays an
+    unbiased estimate of ``b`` and resampling ``∝ f`` still starts the chains near ``f / b``; the
+    variance of ``b`` from *which pixel* a state lands in is gone (on the door scene the slit's
+    pixels are 1 % of the image and hold half its light: with iid states, ``b_2`` had a 15 %
+    standard error from 16 384 states), and the light sample of the pixels lit directly through
+    the slit is stratified (BDPT's ``b_2`` standard error 2.6x lower at 64 states per pixel).
     """
     width, height = res
     n_pix = width * height
     x = np.empty((n, dim))
     i = np.arange(n)
     pix = rng.permutation(n_pix)[i % n_pix]
-    x[:, 0] = (pix % width + rng.random(n)) / width
-    x[:, 1] = (pix // width + rng.random(n)) / height
-    for c in range(2, dim - 1):
-        x[:, c] = (rng.permutation(n) + rng.random(n)) / n
-    rounds = -(-n // n_pix)                       # the last column: stratified inside each pixel
-    perm = np.argsort(rng.random((n_pix, rounds)), axis=1)
-    x[:, dim - 1] = (perm[i % n_pix, i // n_pix] + rng.random(n)) / rounds
+    rnd = i // n_pix
+    k = -(-n // n_pix)
+    g = int(np.ceil(np.sqrt(k)))
+
+    def cells(count):
+        return np.argsort(rng.random((n_pix, count)), axis=1)[pix, rnd]
+
+    for c in range(0, dim - 1, 2):
+        cell = cells(g * g)
+        x[:, c] = (cell % g + rng.random(n)) / g
+        x[:, c + 1] = (cell // g + rng.random(n)) / g
+    if dim % 2:
+        x[:, dim - 1] = (cells(k) + rng.random(n)) / k
+    x[:, 0] = (pix % width + x[:, 0]) / width                 # the film position over the whole image
+    x[:, 1] = (pix // width + x[:, 1]) / height
     np.minimum(x, np.nextafter(1.0, 0.0), out=x)
     return x
 
 
-def _starts(fd, per_depth, bootstrap: bool, rng) -> np.ndarray:
-    """Rows of the bootstrap (``fd``: values, shape (depths, n)) the chains of each depth start at:
-    drawn ``∝ f`` (bootstrap), or uniformly among the lit ones (start-up bias)."""
-    depths, n = fd.shape
-    pick = np.empty(int(per_depth.sum()), dtype=np.intp)
-    at = 0
-    for d in range(depths):
-        c = int(per_depth[d])
+def _starts(fb, per_depth, max_depth: int, bootstrap: bool, rng):
+    """The bootstrap candidates the chains start at: ``(rows, depth, s)`` per chain.
+
+    ``fb`` (n, n_strategies): :func:`bootstrap_values`. The chains of depth
+    ``d`` pick among the ``n (d + 1)`` candidates (row, strategy) of that
+    depth ``∝ f`` (sampling-importance resampling; ``bootstrap=False``:
+    uniformly among the lit ones, for the start-up bias).
+    """
+    n = fb.shape[0]
+    cols = strategy_columns(max_depth)
+    rows, dep, strat = [], [], []
+    for d in range(1, max_depth + 1):
+        c = int(per_depth[d - 1])
         if c == 0:
             continue
-        w = fd[d]
+        js = [j for j, (dd, _) in enumerate(cols) if dd == d]
+        w = fb[:, js].ravel()                              # candidate r * (d + 1) + s
         if bootstrap:
-            pick[at:at + c] = d * n + rng.choice(n, size=c, p=w / w.sum())
+            cand = rng.choice(w.size, size=c, p=w / w.sum())
         else:
             lit = np.flatnonzero(w > 0)
-            pick[at:at + c] = d * n + lit[rng.integers(0, lit.size, size=c)]
-        at += c
-    return pick
+            cand = lit[rng.integers(0, lit.size, size=c)]
+        rows.append(cand // (d + 1))
+        strat.append(cand % (d + 1))
+        dep.append(np.full(c, d))
+    return np.concatenate(rows), np.concatenate(dep), np.concatenate(strat)
 
 
 def _allocate(b, chains):
@@ -398,6 +344,20 @@ def _allocate(b, chains):
     return c + lit
 
 
+def _per_depth(values_d, acc_d, n_steps):
+    """Acceptance rate and ``tau`` per depth from the chains' values (lists of (n_steps, chains_d)
+    blocks per depth) and accepted moves; NaN where no chain ran, ``tau`` NaN below :data:`MIN_TAU_STEPS`."""
+    depths = len(values_d)
+    acceptance, tau = np.full(depths, np.nan), np.full(depths, np.nan)
+    for d in range(depths):
+        if values_d[d]:
+            v = np.concatenate(values_d[d], axis=1)
+            if n_steps >= MIN_TAU_STEPS:
+                tau[d] = max(integrated_time(v)[0], 1.0)
+            acceptance[d] = acc_d[d] / v.size
+    return acceptance, tau
+
+
 def _check(opts: MmltSettings):
     """Every setting's type and value (a ValueError or TypeError naming it)."""
     depth = check_count(opts.max_depth, "max_depth")
@@ -410,9 +370,11 @@ def _check(opts: MmltSettings):
     check_bool(opts.bootstrap, "bootstrap")
     if opts.heuristic not in ("balance", "power"):
         raise ValueError(f"heuristic must be 'balance' or 'power'; got {opts.heuristic!r}")
+    if not isinstance(opts.kernel, str) or opts.kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}; got {opts.kernel!r}")
     layout = StateLayout(depth)
-    check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), None if n_boot is None else n_boot * depth,
-                      payload_words=4, dim_name="max_depth", dim_value=depth)
+    check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot, payload_words=len(strategy_columns(depth)),
+                      dim_name="max_depth", dim_value=depth)
     return depth, chains, sigma, p_large, n_boot, layout
 
 
@@ -445,10 +407,11 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     p_large : float
         Probability of a large step (a fresh uniform state), in [0, 1].
     n_bootstrap : int or None
-        Bootstrap states *per depth*; None: ``max(chains, N / 2, 1024)`` for ``N`` mutations. The
-        bootstrap's error in ``b_d``, a scale on the whole depth-``d`` image, dominated the MSE on
-        cornell-door: of ``N / 20``, ``N / 5``, ``N / 2`` and ``N`` per depth, ``N / 2`` was the
-        most efficient at 128-512 mutations per pixel (docs/mcmc.md, 'MMLT').
+        Bootstrap states, each one BDPT sample joined in every strategy of every depth
+        (:func:`bootstrap_values`); None: ``max(chains, BOOTSTRAP_SHARE N, 1024)`` for ``N``
+        mutations. The bootstrap's error in ``b_d``, a scale on the whole depth-``d`` image,
+        dominates the MSE on cornell-door (about 70 % of it at ``0.2 N``); a bootstrap sample costs
+        about five mutations, and ``0.2 N`` balanced the two at equal time (docs/mcmc.md, 'MMLT').
     bootstrap : bool
         True: start the chains at bootstrap states resampled ``∝ f_d``;
         False: at uniformly drawn lit bootstrap states of their depth
@@ -477,41 +440,46 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     chains = min(chains, n_mut)
     n_steps = -(-n_mut // chains)
     if n_boot is None:
-        n_boot = max(chains, n_mut // 2, MIN_BOOTSTRAP)
-        check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot * depth_max, payload_words=4,
-                          dim_name="max_depth", dim_value=depth_max)
+        n_boot = max(chains, int(BOOTSTRAP_SHARE * n_mut), MIN_BOOTSTRAP)
+        check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot, dim_name="max_depth",
+                          payload_words=len(strategy_columns(depth_max)), dim_value=depth_max)
     tracer = tracer if tracer is not None else Tracer(scene)
     ctx = _Context(scene, tracer, LightOrigins(scene), res, opts.heuristic, True)
     rays = [0]
 
+    _kernel(ctx, opts.kernel)                  # kernel='lambertian' on another scene: the error, before work
+    work = Workspace()
+
     def evaluate(x, depth):
-        f = np.empty(x.shape[0])
-        pix = np.empty(x.shape[0], dtype=np.intp)
-        rgb = np.empty((x.shape[0], 3))
-        for a in range(0, x.shape[0], CHAIN_CHUNK):
-            sl = slice(a, a + CHAIN_CHUNK)
-            f[sl], pix[sl], rgb[sl], r = evaluate_states(ctx, layout, x[sl], depth[sl])
-            rays[0] += r
+        f, pix, rgb, r = evaluate_states(ctx, layout, x, depth, opts.kernel, work)
+        rays[0] += r
         return f, (pix, rgb)
 
-    # the bootstrap: n_boot uniform states per depth
-    boot_depth = np.repeat(np.arange(1, depth_max + 1), n_boot)
-    cand = np.concatenate([stratified_states(n_boot, layout.dim, res, rng) for _ in range(depth_max)])
-    fc, (pc, rc) = evaluate(cand, boot_depth)
-    fd = fc.reshape(depth_max, n_boot)
+    # the bootstrap: n_boot uniform camera and light numbers, every strategy of every depth of each
+    # (one BDPT sample per state): b_d and the candidates the chains start at
+    cand = stratified_states(n_boot, layout.dim, res, rng)
+    fb = np.empty((n_boot, len(strategy_columns(depth_max))))
+    for a in range(0, n_boot, BOOTSTRAP_CHUNK):
+        fb[a:a + BOOTSTRAP_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + BOOTSTRAP_CHUNK], opts.kernel, work)
+        rays[0] += r
+    # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
+    fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
+                   / (d + 1) for d in range(1, depth_max + 1)])
     b = fd.mean(axis=1)
     b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
     if not b.sum() > 0.0:
-        raise ValueError(f"none of the {boot_depth.size} bootstrap paths carries light: cannot start the "
+        raise ValueError(f"none of the {n_boot} bootstrap paths carries light: cannot start the "
                          "chains (raise n_bootstrap)")
     per_depth = _allocate(b, chains)
-    dep = np.repeat(np.arange(1, depth_max + 1), per_depth)
-    pick = _starts(fd, per_depth, opts.bootstrap, rng)
-    # per depth: the splats' sum / N_d (times b_d at the end), and the large steps' values
+    rows, dep, strat = _starts(fb, per_depth, depth_max, opts.bootstrap, rng)
+    x0 = cand[rows]
+    del cand, fb
+    # the strategy number uniform in the candidate's stratum (below its top, so floor(u (d + 1)) = s)
+    x0[:, layout.strategy] = (strat + rng.random(rows.size) * (1.0 - 1e-9)) / (dep + 1)
+    # per depth: the splats' sum / N_d (times b_d at the end)
     inv_n = np.zeros(depth_max + 1)
     inv_n[1:] = np.divide(1.0, per_depth * n_steps, out=np.zeros(depth_max), where=per_depth > 0)
     films = np.zeros(((depth_max + 1) * n_pix, 3))
-    large_n, large_s1, large_s2 = np.zeros(depth_max + 1), np.zeros(depth_max + 1), np.zeros(depth_max + 1)
 
     def splat(payload, weight, dd):
         pix, rgb = payload
@@ -524,46 +492,37 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
 
     n_acc = 0
     acc_d = np.zeros(depth_max)
-    tau = np.full(depth_max, np.nan)
+    moves = np.zeros((2, 2, depth_max + 1))         # (large, small) x (proposals, sum of acceptance) per depth
     values_d = [[] for _ in range(depth_max)]
     for a in range(0, chains, CHAIN_CHUNK):
-        sel = pick[a:a + CHAIN_CHUNK]
         dd = dep[a:a + CHAIN_CHUNK]
+        xa = x0[a:a + CHAIN_CHUNK]
+        fa, pa = evaluate(xa, dd)                  # the starts' values: the bootstrap's (tested)
 
         def visit(px, py, acc_prob, fy, large, dd=dd):
             splat(px, 1.0 - acc_prob, dd)
             splat(py, acc_prob, dd)
-            large_n[:] += np.bincount(dd[large], minlength=depth_max + 1)
-            large_s1[:] += np.bincount(dd[large], weights=fy[large], minlength=depth_max + 1)
-            large_s2[:] += np.bincount(dd[large], weights=fy[large] ** 2, minlength=depth_max + 1)
+            for kind, sel in ((0, large), (1, ~large)):
+                moves[kind, 0] += np.bincount(dd[sel], minlength=depth_max + 1)
+                moves[kind, 1] += np.bincount(dd[sel], weights=acc_prob[sel], minlength=depth_max + 1)
 
-        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (cand[sel], fc[sel], (pc[sel], rc[sel])),
-                                    n_steps, (sigma, p_large), rng, visit=visit)
+        x, fx, values, n = lockstep(lambda y, dd=dd: evaluate(y, dd), (xa, fa, pa), n_steps, (sigma, p_large),
+                                    rng, visit=visit)
         n_acc += int(n.sum())
         for d in range(depth_max):
             cols = np.flatnonzero(dd == d + 1)
             if cols.size:
                 values_d[d].append(values[:, cols])
                 acc_d[d] += n[cols].sum()
-    del cand
-    acceptance = np.full(depth_max, np.nan)
-    for d in range(depth_max):
-        if values_d[d]:
-            v = np.concatenate(values_d[d], axis=1)
-            if n_steps >= MIN_TAU_STEPS:
-                tau[d] = max(integrated_time(v)[0], 1.0)
-            acceptance[d] = acc_d[d] / v.size
-    # b_d from the bootstrap and the large steps together (both iid uniform samples of f_d)
-    n_b = n_boot + large_n[1:]
-    b = (fd.sum(axis=1) + large_s1[1:]) / n_b
-    var = np.maximum(((fd ** 2).sum(axis=1) + large_s2[1:]) / n_b - b * b, 0.0) * n_b / np.maximum(n_b - 1, 1)
-    b_se = np.sqrt(var / n_b)
+    acceptance, tau = _per_depth(values_d, acc_d, n_steps)
     image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
     done = chains * n_steps
     ess = per_depth * n_steps / tau
+    with np.errstate(invalid="ignore", divide="ignore"):
+        acc_kind = np.where(moves[:, 0, 1:] > 0, moves[:, 1, 1:] / moves[:, 0, 1:], np.nan)
     return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
-                    chains=per_depth, acceptance_rate=n_acc / done, acceptance=acceptance, tau=tau, ess=ess,
-                    n_steps=n_steps)
+                    chains=per_depth, acceptance_rate=n_acc / done, acceptance=acceptance,
+                    acceptance_large=acc_kind[0], acceptance_small=acc_kind[1], tau=tau, ess=ess, n_steps=n_steps)
 
 
 def run_batch(job: BatchJob) -> BatchResult:
@@ -590,11 +549,14 @@ def _check_options(scene, options) -> None:
     """``check_scene`` of ``mmlt``: a light to start light subpaths from, and every option's type and value."""
     check_scene(scene, options, "mmlt")
     _check(MmltSettings(chains=options["chains"], sigma=options["sigma"], p_large=options["p_large"],
-                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"]))
+                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"], kernel=options["kernel"]))
+    if options["kernel"] == "lambertian" and not lambertian_scene(scene):
+        raise ValueError(f"kernel='lambertian' needs Lambertian materials and area lights only; scene "
+                         f"{scene.name!r} has other materials, a point light or an environment map")
 
 
 register(Method("mmlt", "chain", run_batch,
                 "multiplexed Metropolis light transport (Hachisuka 2014): lockstep chains on BDPT's camera, "
-                "light and strategy numbers, one MIS-weighted strategy per state, bootstrap per depth "
+                "light and strategy numbers, one MIS-weighted strategy per state, a BDPT bootstrap for every depth "
                 f"(max_depth=None: {DEFAULT_MAX_DEPTH})",
                 options=OPTIONS, check_scene=_check_options, stream_dims=0))
