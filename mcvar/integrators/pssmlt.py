@@ -777,8 +777,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     """
     opts = settings_with(PssmltSettings, settings, options, "pssmlt_film")
     rng = as_rng(rng)
-    width, height = res
-    n_pix = width * height
+    n_pix = res[0] * res[1]
     if not (np.isfinite(spp) and spp > 0):
         raise ValueError(f"spp must be finite and > 0; got {spp}")
     chains = check_count(opts.chains, "chains")
@@ -787,26 +786,28 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
     check_bool(opts.bootstrap, "bootstrap")
     _check_start(opts.start, opts.chain_length, opts.n_bootstrap, opts.bootstrap)
     p_large = P_LARGE[opts.start] if opts.p_large is None else check_probability(opts.p_large, "p_large")
-    opts = replace(opts, p_large=p_large)
+    opts = replace(opts, p_large=p_large, sigma=sigma)
     dim = state_dim(opts.state_depth, opts.max_depth)
     n_mut = max(1, int(round(spp * n_pix)))
     if opts.start == "weighted":
         _check_weighted_memory(dim, opts.state_depth)
-        tracer = tracer if tracer is not None else Tracer(scene)
-        target = _PathTarget(scene, res, tracer, PathSettings(max_depth=opts.max_depth, heuristic=opts.heuristic),
-                             rng)
-        return _weighted_film(target, dim, res, int(np.ceil(spp - 1e-9)), opts, rng)
-    chains = min(chains, n_mut)
-    n_steps = -(-n_mut // chains)
-    n_bootstrap = opts.n_bootstrap
-    if n_bootstrap is None:
-        n_bootstrap = max(4 * chains, n_mut // 4)
-    n_bootstrap = check_count(n_bootstrap, "n_bootstrap")
-    chunk = min(chains, CHAIN_CHUNK)
-    _check_memory(dim, chains, n_bootstrap, opts.state_depth)
+    else:
+        chains = min(chains, n_mut)
+        n_bootstrap = check_count(max(4 * chains, n_mut // 4) if opts.n_bootstrap is None else opts.n_bootstrap,
+                                  "n_bootstrap")
+        _check_memory(dim, chains, n_bootstrap, opts.state_depth)
     tracer = tracer if tracer is not None else Tracer(scene)
-    target = _PathTarget(scene, res, tracer, PathSettings(max_depth=opts.max_depth, heuristic=opts.heuristic),
-                         rng)
+    target = _PathTarget(scene, res, tracer, PathSettings(max_depth=opts.max_depth, heuristic=opts.heuristic), rng)
+    if opts.start == "weighted":
+        return _weighted_film(target, dim, res, int(np.ceil(spp - 1e-9)), opts, rng)
+    return _resampled_film(target, dim, n_pix, n_mut, chains, n_bootstrap, opts, rng)
+
+
+def _resampled_film(target, dim: int, n_pix: int, n_mut: int, chains: int, n_bootstrap: int, opts, rng) -> PssmltFilm:
+    """``start='resample'``: ``chains`` chains from one bootstrap of ``n_bootstrap`` paths, ``n_mut`` mutations
+    in all, stepped :data:`CHAIN_CHUNK` chains at a time (:func:`pssmlt_film`'s estimator)."""
+    n_steps = -(-n_mut // chains)
+    chunk = min(chains, CHAIN_CHUNK)
     cand, fc, pc, rc, pick = _bootstrap(target, dim, chains, n_bootstrap, opts.bootstrap, rng)
     run = _Run(n_pix, opts.splat == "expected", fc)
     interrupted = False
@@ -814,7 +815,7 @@ def pssmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, setting
         for first in range(0, chains, chunk):
             sel = pick[first:first + chunk]
             run.chunk(_Chains(np.take(cand, sel, axis=1), fc[sel], pc[sel], np.take(rc, sel, axis=1)),
-                      n_steps, target, (sigma, p_large), rng)
+                      n_steps, target, (opts.sigma, opts.p_large), rng)
     except KeyboardInterrupt:
         if run.done == 0:
             raise
