@@ -1,6 +1,7 @@
 """How the cost of a path grows with the number of triangles (prints figures; not a test).
 
 Run: ``python benchmarks/bench_triangles.py [--quick] [--rounds R] [--trees OLD NEW]``
+or ``python benchmarks/bench_triangles.py --stages K`` (where the BVH's time goes).
 
 The Cornell box with every non-emitting triangle cut into ``k^2`` pieces
 (:func:`mcvar.tessellate.subdivide`: the same surfaces, so the same image)
@@ -19,6 +20,13 @@ machine's load touches all cases alike. With ``--trees OLD NEW`` (two
 checkouts of mcvar, e.g. ``git worktree add ../base <commit>``) every round
 runs the cases once in a fresh process for each tree in turn, and the table
 puts the two side by side.
+
+``--stages K``: the BVH queries of one render of the box subdivided ``K`` times
+(64 x 64, 32 spp, ``path``, sobol) are captured and replayed, and the time of
+each stage of the wavefront traversal (``mcvar.bvh._Chunk``'s methods, timed by
+wrapping them) is printed per (ray, node) pair, with the calls, the rays per
+call, the rounds and the pairs per ray: the figures of docs/performance.md,
+'Triangle count', 'Where a visit's time goes'.
 """
 from __future__ import annotations
 
@@ -132,7 +140,101 @@ def _table(results: dict, res: int, spp: int, label: str):
         print(f"log-log slope of CPU seconds per path against triangles (BVH cases): {np.polyfit(xs, ys, 1)[0]:.3f}")
 
 
-def main(quick: bool = False, rounds: int | None = None, trees=None, child: bool = False):
+def stages(k: int, res: int = 64, spp: int = 32, passes: int = 3) -> dict:
+    """Capture the BVH queries of one render of the box subdivided ``k`` times, replay
+    them ``passes`` times with every stage of the traversal timed; print and return
+    ``{query: {stage: seconds (best pass)}}`` and the counts."""
+    import mcvar.bvh as B
+    from mcvar.integrators import render
+    from mcvar.scene import load_scene
+    from mcvar.tessellate import subdivide
+
+    scene = subdivide(load_scene("cornell"), k)
+    calls, real = [], {"closest": B.closest, "occluded": B.occluded}
+    seen = {}
+
+    def capture(name):
+        def f(bvh, o, d, tmax, eps, *a, **kw):
+            seen["bvh"] = bvh
+            keep = kw.get("keep")
+            calls.append((name, np.array(o), np.array(d), np.array(np.broadcast_to(tmax, np.shape(o)[1:])), eps,
+                          None if keep is None else np.array(keep)))
+            return real[name](bvh, o, d, tmax, eps, *a, **kw)
+        return f
+
+    B.closest, B.occluded = capture("closest"), capture("occluded")
+    try:
+        render(scene, method="path", spp=spp, res=res, sampler="sobol", rng=1)
+    finally:
+        B.closest, B.occluded = real["closest"], real["occluded"]
+    bvh = seen["bvh"]
+    clock = time.perf_counter
+    acc, count = {}, {}
+    C = B._Chunk
+    wrapped = {"chunk set-up": (C, "__init__"), "boxes": (C, "boxes"), "slab": (B, "_slab"),
+               "children": (C, "children"), "leaves": (C, "leaves"), "leaf test": (B, "_leaf_t"),
+               "split": (C, "split")}
+    originals = {name: getattr(obj, attr) for name, (obj, attr) in wrapped.items()}
+
+    def timed(name, fn):
+        def f(*a, **kw):
+            t0 = clock()
+            try:
+                return fn(*a, **kw)
+            finally:
+                acc[name] = acc.get(name, 0.0) + clock() - t0
+                if name in ("children", "leaves"):
+                    count[name] = count.get(name, 0) + a[1].size        # pairs entering the stage
+                if name == "children":
+                    count["rounds"] = count.get("rounds", 0) + 1
+        return f
+
+    best: dict = {}
+    for _ in range(passes):
+        for query in ("closest", "occluded"):
+            acc.clear()
+            count.clear()
+            for name, (obj, attr) in wrapped.items():
+                setattr(obj, attr, timed(name, originals[name]))
+            try:
+                t0 = clock()
+                for c in calls:
+                    if c[0] == query:
+                        fn = B.closest if query == "closest" else B.occluded
+                        fn(bvh, c[1], c[2], c[3], c[4], **({} if c[5] is None else {"keep": c[5]}))
+                total = clock() - t0
+            finally:
+                for name, (obj, attr) in wrapped.items():
+                    setattr(obj, attr, originals[name])
+            # exclusive times: a method's own time minus the stages it calls
+            st = {"chunk set-up": acc.get("chunk set-up", 0.0),
+                  "box gathers": acc.get("boxes", 0.0) - acc.get("slab", 0.0),
+                  "slab test": acc.get("slab", 0.0),
+                  "listing the children": acc.get("children", 0.0) - acc.get("boxes", 0.0),
+                  "leaf/inner split": acc.get("split", 0.0) - acc.get("leaves", 0.0),
+                  "leaf gathers and record": acc.get("leaves", 0.0) - acc.get("leaf test", 0.0),
+                  "leaf test": acc.get("leaf test", 0.0)}
+            st["rest (calls, chunks, loops)"] = total - sum(st.values())
+            st["total"] = total
+            if query not in best or total < best[query]["stages"]["total"]:
+                best[query] = {"stages": st, "count": dict(count)}
+    print(f"{scene.n_triangles:,} triangles, {res}x{res}, {spp} spp; load average {os.getloadavg()[0]:.2f}")
+    for query in ("closest", "occluded"):
+        rays = [c[1].shape[1] for c in calls if c[0] == query]
+        n, cnt, st = sum(rays), best[query]["count"], best[query]["stages"]
+        pairs = cnt.get("children", 0)
+        print(f"\n{query}: {len(rays)} calls, {n:,} rays (largest call {max(rays):,}, median {int(np.median(rays)):,}), "
+              f"{cnt.get('rounds', 0)} rounds, {pairs / n:.2f} node pairs and {cnt.get('leaves', 0) / n:.2f} "
+              f"leaf pairs a ray (best of {passes} passes)")
+        for name, v in st.items():
+            print(f"  {name:28s} {v * 1e3:8.1f} ms  {v / max(pairs, 1) * 1e9:6.1f} ns a node pair")
+    return best
+
+
+def main(quick: bool = False, rounds: int | None = None, trees=None, child: bool = False, stages_k=None):
+    if stages_k:
+        stages(stages_k)
+        return
     res, spp = (32, 16) if quick else (64, 32)
     rounds = rounds or (2 if quick else 3)
     if child:
@@ -165,4 +267,7 @@ if __name__ == "__main__":
     p.add_argument("--rounds", type=int, default=None)
     p.add_argument("--trees", nargs=2, default=None, metavar=("OLD", "NEW"))
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--stages", type=int, default=None, metavar="K", dest="stages_k",
+                   help="time the BVH traversal's stages on a render of the box subdivided K times (56: 94,082 "
+                        "triangles) and print them per node pair")
     main(**vars(p.parse_args()))

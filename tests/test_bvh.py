@@ -368,3 +368,48 @@ def test_shadow_keys_skip_plane_classes_and_answer_as_brute_force(dtype):
     assert int(tr._shadow_keep[tr.shadow_keys(np.array([floor]), np.array([1]), np.array([-1]))[0]]) == 2 ** 64 - 1
     # every class of more than one triangle is one plane; the rest share the last class
     assert cls.max() < B.CLASSES and len(set(cls)) == 17
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_a_rays_answer_depends_on_that_ray_alone(dtype):
+    """The wavefront prunes a ray's (ray, node) pairs by that ray's own closest hit
+    so far, and a ray's pairs keep the tree's order whatever rays share its chunk:
+    so a ray's closest hit (distance and triangle, ties included) and its shadow
+    answer are the same bit for bit for every chunk length (one ray a chunk: no
+    other ray at all) and any order of the rays. The rays leave the subdivided
+    box's surfaces (many shared edges, so ties are met), a third with a finite tmax."""
+    from test_tracer import _shadow_rays
+
+    rng = np.random.default_rng(SEED + 50)
+    scene = subdivide(load_scene("cornell"), 8)                   # 1,922 triangles
+    tr = Tracer(scene, dtype=dtype, accel="bvh")
+    b, eps, n = tr._bvh, tr.epsilon, 3000
+    src = rng.integers(0, scene.n_triangles, n)
+    u = rng.random((n, 2))
+    u = np.where(u.sum(axis=1, keepdims=True) > 1, 1 - u, u)
+    tri = scene.triangles[src]
+    o = tri[:, 0] + u[:, :1] * (tri[:, 1] - tri[:, 0]) + u[:, 1:] * (tri[:, 2] - tri[:, 0])
+    o += scene.ray_epsilon * tr.triangle_normal[src] * rng.integers(-1, 2, (n, 1))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    tmax = np.where(rng.random(n) < 1 / 3, rng.random(n) * 400.0, np.inf)
+    t_ref, p_ref = B.closest(b, o.T, d.T, tmax, eps)
+    assert 0.5 < np.mean(p_ref >= 0) < 1.0
+    perm = rng.permutation(n)
+    for chunk in (1, 37, 1000):
+        t, p = B.closest(b, o.T, d.T, tmax, eps, chunk=chunk)
+        np.testing.assert_array_equal(t, t_ref)
+        np.testing.assert_array_equal(p, p_ref)
+    t, p = B.closest(b, o[perm].T, d[perm].T, tmax[perm], eps)
+    np.testing.assert_array_equal(t, t_ref[perm])
+    np.testing.assert_array_equal(p, p_ref[perm])
+    # shadow rays with their plane-class keys
+    so, sw, stmax, keys = _shadow_rays(scene, tr, 4000, rng)
+    keep = np.take(tr._shadow_keep, keys)
+    occ_ref = B.occluded(b, so.T, sw.T, stmax, eps, keep=keep)
+    assert 0.05 < occ_ref.mean() < 0.95
+    for chunk in (1, 37, 1000):
+        np.testing.assert_array_equal(B.occluded(b, so.T, sw.T, stmax, eps, chunk=chunk, keep=keep), occ_ref)
+    perm = rng.permutation(so.shape[0])
+    np.testing.assert_array_equal(B.occluded(b, so[perm].T, sw[perm].T, stmax[perm], eps, keep=keep[perm]),
+                                  occ_ref[perm])
