@@ -216,7 +216,7 @@ def trace_lambertian(tr: Transport, o, d, *, slots: int | None = None) -> None:
             beta *= dirs.weight                # in place (``state.beta[...] *=`` would copy the block onto itself)
             pdf = dirs.pdf
             del dirs                           # free the weights now (allocator reuse)
-            _roulette(tr, state, cols, alive)
+            _row_roulette(tr, state, cols, alive)
             # leave on wi's side of the surface: sign(wi . n_g) = sgn for a valid sample
             np.multiply(fn, sgn * tr.eps, out=state.o)
             state.o[...] += p
@@ -248,7 +248,7 @@ def _refill(state: PathState, o, d, a: int, b: int) -> int:
     return b
 
 
-def _roulette(tr: Transport, state: PathState, cols: _VertexColumns, alive) -> None:
+def _row_roulette(tr: Transport, state: PathState, cols: _VertexColumns, alive) -> None:
     """:func:`mcvar.integrators.state.roulette` for rows at different depths:
     the rows at vertex ``>= rr_start`` survive with ``q = min(0.95, max(beta) /
     rr_threshold)`` and carry ``beta / q``; ``alive`` (m,) is updated in place.
