@@ -84,7 +84,7 @@ def calibrate(scene, method, res, depth, seconds, options):
 
 
 def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):
-    print(f"\n{"method":>52} {'spp':>6} {'time s':>7} {'MSE':>9} {'MSE x t':>9} {'efficiency':>10} "
+    print(f"\n{'method':>52} {'spp':>6} {'time s':>7} {'MSE':>9} {'MSE x t':>9} {'efficiency':>10} "
           f"{'vs path':>7}  per-seed MSE")
     spps = {label: calibrate(scene, m, res, depth, seconds, o) for label, m, o in rows}
     stats = {label: [] for label, _, _ in rows}
