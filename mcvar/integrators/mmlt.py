@@ -385,14 +385,35 @@ def _check(opts: MmltSettings):
     return depth, chains, sigma, p_large, n_boot, layout
 
 
+def _bootstrap(ctx, layout, n_boot: int, kernel: str, work, rng):
+    """The bootstrap: ``n_boot`` states stratified per pixel, every strategy of every depth of each (one
+    BDPT sample per state): ``(states, f (n_boot, n_strategies), b, b_stderr, rays)``."""
+    depth_max = layout.max_depth
+    cand = stratified_states(n_boot, layout.dim, ctx.res, rng)
+    fb = np.empty((n_boot, len(strategy_columns(depth_max))))
+    rays = 0
+    for a in range(0, n_boot, BOOTSTRAP_CHUNK):
+        fb[a:a + BOOTSTRAP_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + BOOTSTRAP_CHUNK], kernel, work)
+        rays += r
+    # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
+    fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
+                   / (d + 1) for d in range(1, depth_max + 1)])
+    b = fd.mean(axis=1)
+    b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
+    return cand, fb, b, b_se, rays
+
+
 def _direct_image(ctx, n: int, depth: int, kernel: str, work, rng):
     """The image of depths ``1 .. depth`` by BDPT (Veach and Guibas 1997 render the direct part with
     standard Monte Carlo and Metropolis for the rest): ``n`` states of :class:`StateLayout` ``(depth)``
     stratified per pixel (:func:`stratified_states`), each one BDPT sample of subpaths of ``depth + 1``
     camera and ``depth`` light vertices joined in every strategy of those depths
-    (:func:`~mcvar.integrators.mmlt_states.bootstrap_splats`). ``(image (n_pix, 3), rays)``."""
+    (:func:`~mcvar.integrators.mmlt_states.bootstrap_splats`). ``(image (n_pix, 3), rays)``; ``depth``
+    0: a zero image."""
     width, height = ctx.res
     n_pix = width * height
+    if depth == 0:
+        return np.zeros((n_pix, 3)), 0
     layout = StateLayout(depth)
     x = stratified_states(n, layout.dim, ctx.res, rng)
     inv = 1.0 / np.array([d + 1 for d, _ in strategy_columns(depth)])
@@ -492,22 +513,11 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
 
     # the bootstrap: n_boot uniform camera and light numbers, every strategy of every depth of each
     # (one BDPT sample per state): b_d and the candidates the chains start at
-    cand = stratified_states(n_boot, layout.dim, res, rng)
-    fb = np.empty((n_boot, len(strategy_columns(depth_max))))
-    for a in range(0, n_boot, BOOTSTRAP_CHUNK):
-        fb[a:a + BOOTSTRAP_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + BOOTSTRAP_CHUNK], opts.kernel, work)
-        rays[0] += r
-    # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
-    fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
-                   / (d + 1) for d in range(1, depth_max + 1)])
-    b = fd.mean(axis=1)
-    b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
+    cand, fb, b, b_se, r = _bootstrap(ctx, layout, n_boot, opts.kernel, work, rng)
+    rays[0] += r
     direct_depth = int(opts.direct_depth)
-    direct = np.zeros((n_pix, 3))
-    if direct_depth:
-        direct, r = _direct_image(ctx, max(n_pix, int(round(opts.direct_share * n_mut))), direct_depth,
-                                  opts.kernel, work, rng)
-        rays[0] += r
+    direct, r = _direct_image(ctx, max(n_pix, round(opts.direct_share * n_mut)), direct_depth, opts.kernel, work, rng)
+    rays[0] += r
     b_chain = np.where(np.arange(1, depth_max + 1) <= direct_depth, 0.0, b)     # the chains' depths only
     if not (b_chain.sum() > 0.0 or direct_depth):
         raise ValueError(f"none of the {n_boot} bootstrap paths carries light: cannot start the "
