@@ -35,7 +35,10 @@ every depth, :func:`bootstrap_values`) estimates every ``b_d`` with its
 standard error; chains are given depths in proportion to ``b_d`` (largest
 remainders, at least one chain per lit depth) and start at bootstrap
 candidates (state, strategy) of their depth drawn ``∝ f_d``
-(sampling-importance resampling: no start-up bias to burn off).
+(sampling-importance resampling: no start-up bias to burn off). With
+``direct_depth=k`` depths ``1 .. k`` are rendered by a stratified BDPT pass
+instead and the chains run at the depths above (docs/mcmc.md, 'Direct
+lighting apart').
 
 References
 ----------
@@ -74,8 +77,10 @@ __all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BO
 
 #: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
 #: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
-#: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`)
-#: and whether the chains start from the bootstrap (False: start-up bias).
+#: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`),
+#: whether the chains start from the bootstrap (False: start-up bias), the
+#: evaluation kernel, and the depths rendered by BDPT instead of the chains
+#: (``direct_depth``, 0: none) with that pass's samples per mutation.
 OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True,
            "kernel": "auto", "direct_depth": 0, "direct_share": 1.0}
 
@@ -404,8 +409,8 @@ def _bootstrap(ctx, layout, n_boot: int, kernel: str, work, rng):
 
 
 def _direct_image(ctx, n: int, depth: int, kernel: str, work, rng):
-    """The image of depths ``1 .. depth`` by BDPT (Veach and Guibas 1997 render the direct part with
-    standard Monte Carlo and Metropolis for the rest): ``n`` states of :class:`StateLayout` ``(depth)``
+    """The image of depths ``1 .. depth`` by BDPT (the direct lighting by standard Monte Carlo and
+    Metropolis for the rest, as in Veach and Guibas's MLT paper): ``n`` states of :class:`StateLayout` ``(depth)``
     stratified per pixel (:func:`stratified_states`), each one BDPT sample of subpaths of ``depth + 1``
     camera and ``depth`` light vertices joined in every strategy of those depths
     (:func:`~mcvar.integrators.mmlt_states.bootstrap_splats`). ``(image (n_pix, 3), rays)``; ``depth``
