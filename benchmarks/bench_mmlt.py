@@ -1,7 +1,8 @@
 """MMLT vs path, bdpt and pssmlt at equal time on cornell-door (prints tables; not a test).
 
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_mmlt.py [--seconds 2] [--seeds 3] [--res 32] [--slit 20]
-[--center 278] [--height 300] [--methods path,bdpt,pssmlt,mmlt] [--mmlt-options '{"chains": 4096}'] [--variants '[{}, {"direct_depth": 2}]']``
+[--center 278] [--height 300] [--methods path,bdpt,pssmlt,mmlt] [--mmlt-options '{"chains": 4096}']
+[--variants '[{}, {"direct_depth": 2}]']``
 (the door's geometry as ``cornell_door_scene``'s parameters; ``--center 200 --height 120`` puts the slit
 behind the short block, where the camera sees neither the closet nor any directly lit surface)
 

@@ -581,7 +581,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     with np.errstate(invalid="ignore", divide="ignore"):
         acc_kind = np.where(moves[:, 0, 1:] > 0, moves[:, 1, 1:] / moves[:, 0, 1:], np.nan)
     return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
-                    chains=per_depth, acceptance_rate=n_acc / done if per_depth.sum() else np.nan, acceptance=acceptance,
+                    chains=per_depth, acceptance_rate=n_acc / done if per_depth.sum() else np.nan,
+                    acceptance=acceptance,
                     acceptance_large=acc_kind[0], acceptance_small=acc_kind[1], tau=tau, ess=ess, n_steps=n_steps)
 
 
