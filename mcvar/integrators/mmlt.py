@@ -472,9 +472,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
         False: at uniformly drawn lit bootstrap states of their depth
         (start-up bias, for the measurement).
     direct_depth : int
-        Depths ``1 .. direct_depth`` (2: emission seen directly and direct lighting) are rendered by
-        BDPT (:func:`_direct_image`, stratified per pixel), the chains run at the depths above only
-        (0: every depth by the chains). The two parts cover ``1 .. max_depth`` once each.
+        Depths ``1 .. direct_depth`` (2: emission seen and direct light) by BDPT (:func:`_direct_image`,
+        stratified per pixel), the chains at the depths above only (0: every depth by the chains).
     direct_share : float
         BDPT samples of the direct part per mutation (``direct_depth > 0``).
 
