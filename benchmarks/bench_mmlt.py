@@ -1,7 +1,8 @@
 """MMLT vs path, bdpt and pssmlt at equal time on cornell-door (prints tables; not a test).
 
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_mmlt.py [--seconds 2] [--seeds 3] [--res 32] [--slit 20]
-[--center 278] [--height 300] [--methods path,bdpt,pssmlt,mmlt] [--mmlt-options '{"chains": 4096}']``
+[--center 278] [--height 300] [--methods path,bdpt,pssmlt,mmlt] [--mmlt-options '{"chains": 4096}']
+[--variants '[{}, {"direct_depth": 2}]']``
 (the door's geometry as ``cornell_door_scene``'s parameters; ``--center 200 --height 120`` puts the slit
 behind the short block, where the camera sees neither the closet nor any directly lit surface)
 
@@ -84,7 +85,7 @@ def calibrate(scene, method, res, depth, seconds, options):
 
 
 def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):
-    print(f"\n{'method':>22} {'spp':>6} {'time s':>7} {'MSE':>9} {'MSE x t':>9} {'efficiency':>10} "
+    print(f"\n{'method':>52} {'spp':>6} {'time s':>7} {'MSE':>9} {'MSE x t':>9} {'efficiency':>10} "
           f"{'vs path':>7}  per-seed MSE")
     spps = {label: calibrate(scene, m, res, depth, seconds, o) for label, m, o in rows}
     stats = {label: [] for label, _, _ in rows}
@@ -103,7 +104,7 @@ def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):
     base = out[rows[0][0]][3]
     for label, _, _ in rows:
         spp, t, e, eff = out[label]
-        print(f"{label:>22} {spp:>6} {t:>7.2f} {e:>9.3g} {t * e:>9.3g} {eff:>10.3g} {eff / base:>7.2f}  "
+        print(f"{label:>52} {spp:>6} {t:>7.2f} {e:>9.3g} {t * e:>9.3g} {eff:>10.3g} {eff / base:>7.2f}  "
               + " ".join(f"{b:.2g}" for _, b in stats[label]))
     for label, ex in extras.items():
         e = ex[0]
@@ -130,6 +131,9 @@ def main():
     ap.add_argument("--height", type=float, default=300.0)
     ap.add_argument("--methods", default="path,bdpt,pssmlt,mmlt", help="comma-separated; the first is the baseline")
     ap.add_argument("--mmlt-options", default="{}", help='JSON options of mmlt, e.g. \'{"chains": 4096}\'')
+    ap.add_argument("--variants", default=None,
+                    help='JSON list of mmlt option dicts run side by side (each a row "mmlt <options>"), e.g. '
+                         '\'[{}, {"direct_depth": 2}]\'')
     ap.add_argument("--trade", action="store_true", help="also the chains x sigma table of mmlt")
     args = ap.parse_args()
     print(f"load average before: {os.getloadavg()} on {os.cpu_count()} CPUs")
@@ -138,7 +142,12 @@ def main():
     ref, noise = reference(scene, name, args.res, args.depth, args.ref_spp, method=args.ref_method)
     print(f"== {name} {args.res}x{args.res}, max_depth {args.depth}, {args.seconds:g} s per render, "
           f"{args.seeds} seeds; reference mean {ref.mean():.4g}, its noise {noise:.3g} (subtracted)")
-    rows = [(m, m, json.loads(args.mmlt_options) if m == "mmlt" else {}) for m in args.methods.split(",")]
+    rows = []
+    for m in args.methods.split(","):
+        if m == "mmlt" and args.variants is not None:
+            rows += [(f"mmlt {json.dumps(v, separators=(',', ':'))}", m, v) for v in json.loads(args.variants)]
+        else:
+            rows.append((m, m, json.loads(args.mmlt_options) if m == "mmlt" else {}))
     table(scene, name, args.res, args.depth, args.seconds, args.seeds, rows, ref, noise)
     if args.trade:
         rows = [("path", "path", {})] + [(f"mmlt chains={c} sigma={s}", "mmlt", dict(chains=c, sigma=s))

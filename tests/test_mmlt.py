@@ -9,7 +9,8 @@ from mcvar.integrators.emitters import LightOrigins
 from mcvar.integrators.light import _Context
 from mcvar.integrators.mmlt_lambertian import Workspace
 from mcvar.integrators.mmlt import MmltSettings, StateLayout, lockstep, mmlt_film, stratified_states
-from mcvar.integrators.mmlt_states import bootstrap_values, evaluate_states, strategy_columns
+from mcvar.integrators.mmlt import _direct_image
+from mcvar.integrators.mmlt_states import bootstrap_splats, bootstrap_values, evaluate_states, strategy_columns
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
 
@@ -190,6 +191,10 @@ def test_diagnostics_per_depth():
     ({"bootstrap": "yes"}, TypeError, "bootstrap"),
     ({"max_depth": 0}, ValueError, "max_depth"),
     ({"chains": 2.5}, TypeError, "chains"),
+    ({"direct_depth": -1}, ValueError, "direct_depth"),
+    ({"direct_depth": 6}, ValueError, "direct_depth"),
+    ({"direct_depth": 1.5}, TypeError, "direct_depth"),
+    ({"direct_share": 0.0}, ValueError, "direct_share"),
 ])
 def test_bad_input_names_the_argument(options, error, match):
     with pytest.raises(error, match=match):
@@ -291,3 +296,74 @@ def test_kernel_option_is_checked():
     a = render(scene, kernel="general", **kw).image
     b = render(scene, kernel="lambertian", **kw).image
     np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-15)   # the same chains: the kernel changes no value
+
+
+def _embed(x, short, long):
+    """States of ``StateLayout(long.max_depth)`` whose streams begin with those of ``x`` (``short``)."""
+    y = np.random.default_rng(5).random((x.shape[0], long.dim))
+    y[:, :2] = x[:, :2]
+    for a, b in ((short.camera_vertices, long.camera_vertices), (short.light_vertices, long.light_vertices)):
+        y[:, b.start:b.start + a.stop - a.start] = x[:, a]
+    y[:, long.light_origin] = x[:, short.light_origin]
+    return y
+
+
+@pytest.mark.parametrize("kernel", ["general", "lambertian"])
+def test_direct_part_is_the_bootstraps_short_depths(kernel):
+    """An exact identity: the direct part's BDPT sample (subpaths of a depth-2 state) joined in the
+    strategies of depths 1, 2 gives each strategy's f, pixel and rgb of the depth-5 bootstrap sample
+    whose streams begin with the same numbers (its subpaths are prefixes: no Russian roulette)."""
+    scene = load_scene("cornell-door")
+    res = (8, 8)
+    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
+    short, long = StateLayout(2), StateLayout(5)
+    x = stratified_states(8192, short.dim, res, np.random.default_rng(2210))
+    f, pix, rgb, _ = bootstrap_splats(ctx, short, x, kernel, Workspace())
+    g, pix_g, rgb_g, _ = bootstrap_splats(ctx, long, _embed(x, short, long), kernel, Workspace())
+    n = len(strategy_columns(2))
+    assert strategy_columns(5)[:n] == strategy_columns(2) and np.count_nonzero(f) >= 50
+    np.testing.assert_allclose(f, g[:, :n], rtol=1e-12, atol=0.0)
+    np.testing.assert_array_equal(pix, pix_g[:, :n])
+    np.testing.assert_allclose(rgb, rgb_g[:, :n], rtol=1e-12, atol=0.0)
+    # and the splat keeps the luminance: the direct image's mean is BDPT's b_1 + b_2 of the same states
+    image, _ = _direct_image(ctx, 8192, 2, kernel, Workspace(), np.random.default_rng(2210))
+    d = np.array([c[0] for c in strategy_columns(2)])
+    np.testing.assert_allclose((image @ LUM).mean(), (f / (d + 1)).sum(axis=1).mean(), rtol=1e-12)
+
+
+def test_direct_depths_and_chain_depths_partition_the_depths(cornell):
+    """direct_depth=2 at max_depth 4: no chain at depths 1, 2, every chain at 3, 4 (in proportion to
+    b_d); direct_depth=max_depth: no chain at all, the image BDPT's alone."""
+    run = mmlt_film(cornell, (8, 8), 32, rng=4, max_depth=4, chains=128, direct_depth=2)
+    assert np.all(run.chains[:2] == 0) and run.chains.sum() == 128 and np.all(run.chains[2:] > 0)
+    share = run.b[2:] / run.b[2:].sum() * (128 - 2)
+    assert np.all(np.abs(run.chains[2:] - 1 - share) < 1)
+    none = mmlt_film(cornell, (8, 8), 32, rng=4, max_depth=4, chains=128, direct_depth=4)
+    assert none.chains.sum() == 0 and np.isnan(none.acceptance_rate) and np.all(np.isfinite(none.sum))
+
+
+@pytest.mark.parametrize("direct_depth", [2, 3])
+def test_direct_plus_chains_is_unbiased_against_bdpt_per_block(cornell, direct_depth):
+    """direct_depth=2 (BDPT for depths 1, 2, chains for 3) and 3 (every depth by BDPT: the zero-chain
+    run) at max_depth 3: block means of independent runs against independent BDPT renders, 5 sigma
+    Sidak over the 12 checks (each side's variance from its runs' spread)."""
+    res, depth, R = 8, 3, 12
+    seeds = np.random.SeedSequence(2211 + direct_depth).spawn(2 * R)
+
+    def blocks(img):
+        return img.reshape(2, 4, 2, 4, 3).mean(axis=(1, 3)).reshape(4, 3)
+
+    m = np.array([blocks(render(cornell, method="mmlt", spp=64, res=res, rng=s, max_depth=depth, batch_spp=64,
+                                chains=512, direct_depth=direct_depth).image) for s in seeds[:R]])
+    b = np.array([blocks(render(cornell, method="bdpt", spp=32, res=res, rng=s, max_depth=depth).image)
+                  for s in seeds[R:]])
+    se = np.sqrt(m.var(axis=0, ddof=1) / R + b.var(axis=0, ddof=1) / R)
+    z = (m.mean(axis=0) - b.mean(axis=0)) / se
+    assert np.all(np.abs(z) < _z(z.size)), (z, _z(z.size))
+
+
+def test_workers_two_give_the_image_of_one_with_a_direct_part():
+    scene = load_scene("cornell-door")
+    kw = dict(method="mmlt", spp=4, res=8, rng=2212, batch_spp=2, max_depth=4, chains=64, n_bootstrap=4096,
+              direct_depth=2)
+    np.testing.assert_array_equal(render(scene, workers=1, **kw).image, render(scene, workers=2, **kw).image)

@@ -35,7 +35,10 @@ every depth, :func:`bootstrap_values`) estimates every ``b_d`` with its
 standard error; chains are given depths in proportion to ``b_d`` (largest
 remainders, at least one chain per lit depth) and start at bootstrap
 candidates (state, strategy) of their depth drawn ``∝ f_d``
-(sampling-importance resampling: no start-up bias to burn off).
+(sampling-importance resampling: no start-up bias to burn off). With
+``direct_depth=k`` depths ``1 .. k`` are rendered by a stratified BDPT pass
+instead and the chains run at the depths above (docs/mcmc.md, 'Direct
+lighting apart').
 
 References
 ----------
@@ -65,7 +68,7 @@ from .emitters import LightOrigins
 from .film import BatchJob, BatchResult
 from .light import CHUNK_PATHS, _Context, check_scene
 from .mmlt_lambertian import Workspace, lambertian_scene
-from .mmlt_states import KERNELS, _kernel, bootstrap_values, evaluate_states, strategy_columns
+from .mmlt_states import KERNELS, _kernel, bootstrap_splats, bootstrap_values, evaluate_states, strategy_columns
 from .registry import Method, register
 
 __all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BOOTSTRAP_SHARE", "MIN_TAU_STEPS",
@@ -74,10 +77,12 @@ __all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BO
 
 #: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
 #: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
-#: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`)
-#: and whether the chains start from the bootstrap (False: start-up bias).
+#: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`),
+#: whether the chains start from the bootstrap (False: start-up bias), the
+#: evaluation kernel, and the depths rendered by BDPT instead of the chains
+#: (``direct_depth``, 0: none) with that pass's samples per mutation.
 OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True,
-           "kernel": "auto"}
+           "kernel": "auto", "direct_depth": 0, "direct_share": 1.0}
 
 #: The depth (segments) a render with ``max_depth=None`` uses: the state has a
 #: fixed size, so MMLT needs a finite depth (pbrt-v4's ``maxdepth`` 5 bounces
@@ -213,6 +218,8 @@ class MmltSettings:
     n_bootstrap: int | None = OPTIONS["n_bootstrap"]
     bootstrap: bool = OPTIONS["bootstrap"]
     kernel: str = OPTIONS["kernel"]
+    direct_depth: int = OPTIONS["direct_depth"]
+    direct_share: float = OPTIONS["direct_share"]
 
 
 @dataclass(frozen=True)
@@ -368,6 +375,11 @@ def _check(opts: MmltSettings):
     p_large = check_probability(opts.p_large, "p_large")
     n_boot = None if opts.n_bootstrap is None else check_count(opts.n_bootstrap, "n_bootstrap")
     check_bool(opts.bootstrap, "bootstrap")
+    if isinstance(opts.direct_depth, bool) or not isinstance(opts.direct_depth, (int, np.integer)):
+        raise TypeError(f"direct_depth must be an int; got {type(opts.direct_depth).__name__} {opts.direct_depth!r}")
+    if not 0 <= opts.direct_depth <= depth:
+        raise ValueError(f"direct_depth must be an int in [0, max_depth={depth}]; got {opts.direct_depth!r}")
+    check_positive(opts.direct_share, "direct_share")
     if opts.heuristic not in ("balance", "power"):
         raise ValueError(f"heuristic must be 'balance' or 'power'; got {opts.heuristic!r}")
     if not isinstance(opts.kernel, str) or opts.kernel not in KERNELS:
@@ -376,6 +388,49 @@ def _check(opts: MmltSettings):
     check_walk_budget(layout.dim, min(chains, CHAIN_CHUNK), n_boot, payload_words=len(strategy_columns(depth)),
                       dim_name="max_depth", dim_value=depth)
     return depth, chains, sigma, p_large, n_boot, layout
+
+
+def _bootstrap(ctx, layout, n_boot: int, kernel: str, work, rng):
+    """The bootstrap: ``n_boot`` states stratified per pixel, every strategy of every depth of each (one
+    BDPT sample per state): ``(states, f (n_boot, n_strategies), b, b_stderr, rays)``."""
+    depth_max = layout.max_depth
+    cand = stratified_states(n_boot, layout.dim, ctx.res, rng)
+    fb = np.empty((n_boot, len(strategy_columns(depth_max))))
+    rays = 0
+    for a in range(0, n_boot, BOOTSTRAP_CHUNK):
+        fb[a:a + BOOTSTRAP_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + BOOTSTRAP_CHUNK], kernel, work)
+        rays += r
+    # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
+    fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
+                   / (d + 1) for d in range(1, depth_max + 1)])
+    b = fd.mean(axis=1)
+    b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
+    return cand, fb, b, b_se, rays
+
+
+def _direct_image(ctx, n: int, depth: int, kernel: str, work, rng):
+    """The image of depths ``1 .. depth`` by BDPT (the direct lighting by standard Monte Carlo and
+    Metropolis for the rest, as in Veach and Guibas's MLT paper): ``n`` states of :class:`StateLayout` ``(depth)``
+    stratified per pixel (:func:`stratified_states`), each one BDPT sample of subpaths of ``depth + 1``
+    camera and ``depth`` light vertices joined in every strategy of those depths
+    (:func:`~mcvar.integrators.mmlt_states.bootstrap_splats`). ``(image (n_pix, 3), rays)``; ``depth``
+    0: a zero image."""
+    width, height = ctx.res
+    n_pix = width * height
+    if depth == 0:
+        return np.zeros((n_pix, 3)), 0
+    layout = StateLayout(depth)
+    x = stratified_states(n, layout.dim, ctx.res, rng)
+    inv = 1.0 / np.array([d + 1 for d, _ in strategy_columns(depth)])
+    image, rays = np.zeros((n_pix, 3)), 0
+    for a in range(0, n, BOOTSTRAP_CHUNK):
+        _, pix, rgb, r = bootstrap_splats(ctx, layout, x[a:a + BOOTSTRAP_CHUNK], kernel, work)
+        rays += r
+        ok = pix >= 0
+        w = np.broadcast_to(inv, pix.shape)[ok]
+        for c in range(3):
+            image[:, c] += np.bincount(pix[ok], weights=w * rgb[..., c][ok], minlength=n_pix)
+    return image * (n_pix / n), rays
 
 
 def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings: MmltSettings | None = None,
@@ -416,6 +471,11 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
         True: start the chains at bootstrap states resampled ``∝ f_d``;
         False: at uniformly drawn lit bootstrap states of their depth
         (start-up bias, for the measurement).
+    direct_depth : int
+        Depths ``1 .. direct_depth`` (2: emission seen and direct light) by BDPT (:func:`_direct_image`,
+        stratified per pixel), the chains at the depths above only (0: every depth by the chains).
+    direct_share : float
+        BDPT samples of the direct part per mutation (``direct_depth > 0``).
 
     Notes
     -----
@@ -457,21 +517,20 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
 
     # the bootstrap: n_boot uniform camera and light numbers, every strategy of every depth of each
     # (one BDPT sample per state): b_d and the candidates the chains start at
-    cand = stratified_states(n_boot, layout.dim, res, rng)
-    fb = np.empty((n_boot, len(strategy_columns(depth_max))))
-    for a in range(0, n_boot, BOOTSTRAP_CHUNK):
-        fb[a:a + BOOTSTRAP_CHUNK], r = bootstrap_values(ctx, layout, cand[a:a + BOOTSTRAP_CHUNK], opts.kernel, work)
-        rays[0] += r
-    # BDPT's per-depth estimate of each bootstrap sample: sum_s w_{s,t} Y(C_{s,t}) = sum_s f_{d,s} / (d + 1)
-    fd = np.stack([fb[:, [j for j, (dd, _) in enumerate(strategy_columns(depth_max)) if dd == d]].sum(axis=1)
-                   / (d + 1) for d in range(1, depth_max + 1)])
-    b = fd.mean(axis=1)
-    b_se = fd.std(axis=1, ddof=1) / np.sqrt(n_boot) if n_boot > 1 else np.full(depth_max, np.inf)
-    if not b.sum() > 0.0:
+    cand, fb, b, b_se, r = _bootstrap(ctx, layout, n_boot, opts.kernel, work, rng)
+    rays[0] += r
+    direct_depth = int(opts.direct_depth)
+    direct, r = _direct_image(ctx, max(n_pix, round(opts.direct_share * n_mut)), direct_depth, opts.kernel, work, rng)
+    rays[0] += r
+    b_chain = np.where(np.arange(1, depth_max + 1) <= direct_depth, 0.0, b)     # the chains' depths only
+    if not (b_chain.sum() > 0.0 or direct_depth):
         raise ValueError(f"none of the {n_boot} bootstrap paths carries light: cannot start the "
                          "chains (raise n_bootstrap)")
-    per_depth = _allocate(b, chains)
-    rows, dep, strat = _starts(fb, per_depth, depth_max, opts.bootstrap, rng)
+    if b_chain.sum() > 0.0:
+        per_depth = _allocate(b_chain, chains)
+        rows, dep, strat = _starts(fb, per_depth, depth_max, opts.bootstrap, rng)
+    else:                                              # the direct part holds every lit depth: no chain
+        per_depth, rows, dep, strat = np.zeros(depth_max, dtype=np.int64), *np.zeros((3, 0), dtype=np.intp)
     x0 = cand[rows]
     del cand, fb
     # the strategy number uniform in the candidate's stratum (below its top, so floor(u (d + 1)) = s)
@@ -494,7 +553,7 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     acc_d = np.zeros(depth_max)
     moves = np.zeros((2, 2, depth_max + 1))         # (large, small) x (proposals, sum of acceptance) per depth
     values_d = [[] for _ in range(depth_max)]
-    for a in range(0, chains, CHAIN_CHUNK):
+    for a in range(0, int(per_depth.sum()), CHAIN_CHUNK):
         dd = dep[a:a + CHAIN_CHUNK]
         xa = x0[a:a + CHAIN_CHUNK]
         fa, pa = evaluate(xa, dd)                  # the starts' values: the bootstrap's (tested)
@@ -515,13 +574,14 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
                 values_d[d].append(values[:, cols])
                 acc_d[d] += n[cols].sum()
     acceptance, tau = _per_depth(values_d, acc_d, n_steps)
-    image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b[:, None, None]).sum(axis=0)
-    done = chains * n_steps
+    image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b_chain[:, None, None]).sum(axis=0) + direct
+    done = int(per_depth.sum()) * n_steps or n_mut
     ess = per_depth * n_steps / tau
     with np.errstate(invalid="ignore", divide="ignore"):
         acc_kind = np.where(moves[:, 0, 1:] > 0, moves[:, 1, 1:] / moves[:, 0, 1:], np.nan)
     return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
-                    chains=per_depth, acceptance_rate=n_acc / done, acceptance=acceptance,
+                    chains=per_depth, acceptance_rate=n_acc / done if per_depth.sum() else np.nan,
+                    acceptance=acceptance,
                     acceptance_large=acc_kind[0], acceptance_small=acc_kind[1], tau=tau, ess=ess, n_steps=n_steps)
 
 
@@ -549,7 +609,8 @@ def _check_options(scene, options) -> None:
     """``check_scene`` of ``mmlt``: a light to start light subpaths from, and every option's type and value."""
     check_scene(scene, options, "mmlt")
     _check(MmltSettings(chains=options["chains"], sigma=options["sigma"], p_large=options["p_large"],
-                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"], kernel=options["kernel"]))
+                        n_bootstrap=options["n_bootstrap"], bootstrap=options["bootstrap"], kernel=options["kernel"],
+                        direct_depth=options["direct_depth"], direct_share=options["direct_share"]))
     if options["kernel"] == "lambertian" and not lambertian_scene(scene):
         raise ValueError(f"kernel='lambertian' needs Lambertian materials and area lights only; scene "
                          f"{scene.name!r} has other materials, a point light or an environment map")

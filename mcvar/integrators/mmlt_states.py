@@ -28,7 +28,7 @@ from .bdpt import _connect_emitter, _connect_inner, _mis_weight
 from .light import PathNumbers, _connect_camera, camera_subpath, light_subpath
 from .mmlt_lambertian import connect_lambertian, lambertian_scene, trace_lambertian
 
-__all__ = ["KERNELS", "evaluate_states", "strategy_columns", "bootstrap_values"]
+__all__ = ["KERNELS", "evaluate_states", "strategy_columns", "bootstrap_values", "bootstrap_splats"]
 
 #: Values of the ``kernel`` option: 'auto' (the Lambertian kernel where the scene allows it), 'general'
 #: (BDPT's own connections: every scene), 'lambertian' (an error where it does not apply).
@@ -186,21 +186,35 @@ def bootstrap_values(ctx, layout, x: np.ndarray, kernel: str = "auto", work=None
     roulette), so the values are :func:`evaluate_states`' (tested). ``mean_j
     sum_s f[:, (d, s)] / (d + 1)`` is BDPT's estimate of ``b_d``.
     """
+    f, _, _, rays = bootstrap_splats(ctx, layout, x, kernel, work)
+    return f, rays
+
+
+def bootstrap_splats(ctx, layout, x: np.ndarray, kernel: str = "auto", work=None):
+    """:func:`bootstrap_values` with the splats: ``(f, pixel, rgb, rays)``, shapes ``(m, n)``, ``(m, n)``,
+    ``(m, n, 3)`` for ``n`` strategies; ``rgb = (d + 1) w_{s,t} C_{s,t}``, ``pixel`` its film pixel
+    (-1 where it carries no light). ``sum_{s} rgb[:, (d, s)] / (d + 1)`` splatted at its pixels is one
+    BDPT sample of the depth-``d`` image (MMLT's ``direct_depth`` part)."""
     D = layout.max_depth
     m = x.shape[0]
     cols = strategy_columns(D)
     if _kernel(ctx, kernel):
         C, L, pix, rays = trace_lambertian(ctx, layout, x, np.full(m, D + 1), np.full(m, D), work)
         dep, s = (np.tile(np.array([c[i] for c in cols]), m) for i in (0, 1))
-        f, _, _, r = connect_lambertian(ctx, C, L, pix, np.repeat(np.arange(m), len(cols)), s, dep + 1 - s, dep)
-        return f.reshape(m, len(cols)), rays + r
+        f, pixel, rgb, r = connect_lambertian(ctx, C, L, pix, np.repeat(np.arange(m), len(cols)), s, dep + 1 - s,
+                                              dep)
+        return f.reshape(m, len(cols)), pixel.reshape(m, len(cols)), rgb.reshape(m, len(cols), 3), rays + r
     C, L, rays = _subpaths(ctx, layout, x, np.full(m, D + 1), np.full(m, D))
-    f = np.zeros((m, len(cols)))
+    rgb = np.zeros((m, len(cols), 3))
+    pixel = np.full((m, len(cols)), -1, dtype=np.intp)
     s_max, t_max = int(L.length.max()), int(C.length.max())
     for j, (d, s) in enumerate(cols):
         if s > s_max or d + 1 - s > t_max:
             continue                                  # no path has the vertices
-        k, _, value, weight, r = _connect(ctx, L, C, s, d + 1 - s)
+        k, pix, value, weight, r = _connect(ctx, L, C, s, d + 1 - s)
         rays += r
-        f[k, j] = (value * (weight * (d + 1))[:, None]) @ _LUM
-    return f, rays
+        rgb[k, j] = value * (weight * (d + 1))[:, None]
+        pixel[k, j] = pix
+    f = rgb @ _LUM
+    pixel[f <= 0.0] = -1
+    return f, pixel, rgb, rays
