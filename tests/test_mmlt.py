@@ -228,6 +228,15 @@ def test_start_up_bias_is_removed_by_the_bootstrap(cornell):
     assert share[False][0] - truth > 5 * share[False][1], (share, truth)
 
 
+def _states(name, depth, seed, res=(8, 8), n=16384):
+    """``(ctx, layout, rng, x)``: a BDPT context on scene ``name`` and ``n`` stratified depth-``depth`` states."""
+    scene = load_scene(name)
+    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
+    lay = StateLayout(depth)
+    rng = np.random.default_rng(seed)
+    return ctx, lay, rng, stratified_states(n, lay.dim, res, rng)
+
+
 @pytest.mark.parametrize("name", ["cornell-door", "cornell-point", "quad-environment", "cornell-caustic"])
 def test_bootstrap_values_are_each_strategys_target(name):
     """An exact identity between two evaluations of f_d: ``bootstrap_values`` (one BDPT sample per
@@ -235,12 +244,8 @@ def test_bootstrap_values_are_each_strategys_target(name):
     every subpath traced only as long as its strategy needs, all of them in one wavefront). The
     shorter subpaths are prefixes of the longer ones (no Russian roulette), so each state's value
     must be its column's to rounding, on area, point and environment lights and on glass."""
-    scene = load_scene(name)
-    res, depth = (8, 8), 4
-    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
-    lay = StateLayout(depth)
-    rng = np.random.default_rng(2207)
-    x = stratified_states(16384, lay.dim, res, rng)
+    depth = 4
+    ctx, lay, rng, x = _states(name, depth, 2207)
     fb, _ = bootstrap_values(ctx, lay, x, kernel="general")        # BDPT's own code (the kernel: below)
     cols = strategy_columns(depth)
     j = rng.integers(0, len(cols), size=x.shape[0])               # a strategy per state
@@ -266,12 +271,8 @@ def test_lambertian_kernel_is_the_general_evaluation(name):
     depth and strategy and for the bootstrap's every-strategy rows (an exact identity: the same
     paths, the same formulas written out); the checkerboard's textured emitter and the furnace's
     spheres take the kernel's general fallbacks."""
-    scene = load_scene(name)
-    res, depth = (8, 8), 5
-    ctx = _Context(scene, Tracer(scene), LightOrigins(scene), res, "power", True)
-    lay = StateLayout(depth)
-    rng = np.random.default_rng(2208)
-    x = stratified_states(16384, lay.dim, res, rng)
+    depth = 5
+    ctx, lay, rng, x = _states(name, depth, 2208)
     d = rng.integers(1, depth + 1, size=x.shape[0])
     f, pixel, rgb, _ = evaluate_states(ctx, lay, x, d, kernel="general")
     g, pixel_g, rgb_g, _ = evaluate_states(ctx, lay, x, d, kernel="lambertian", work=Workspace())
