@@ -34,6 +34,8 @@ from mcvar.scene import load_scene
 from mcvar.testing import sidak_significance
 from mcvar.tracer import Tracer
 
+from pixel_rays import subpixel_hits  # tests/pixel_rays.py
+
 SEED = 21_2112
 RES = 32
 BLOCK = 4
@@ -63,11 +65,7 @@ def sees_light(scene, sub=8):
     """Pixels whose ``sub x sub`` subpixel rays hit the light, grown by one
     pixel (slivers of the light's edge): their samples carry the light's
     radiance over a tiny area, heavy-tailed at a few spp."""
-    pix = np.repeat(np.arange(RES * RES), sub * sub)
-    g = (np.arange(sub) + 0.5) / sub
-    off = np.tile(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), (RES * RES, 1))
-    d = scene.camera.ray_directions((RES, RES), pix, off)
-    hit = Tracer(scene).intersect(np.broadcast_to(scene.camera.position, d.shape), d)
+    pix, hit = subpixel_hits(scene, RES, sub)
     lit = np.zeros(RES * RES, bool)
     lit[pix[np.take(np.append(scene.prim_light, -1), hit.prim) >= 0]] = True
     return ndimage.binary_dilation(lit.reshape(RES, RES), iterations=1)

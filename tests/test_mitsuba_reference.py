@@ -41,7 +41,8 @@ import pytest
 from scipy import stats
 
 from mcvar.integrators import METHODS, render
-from mcvar.tracer import Tracer
+
+from pixel_rays import subpixel_hits  # tests/pixel_rays.py
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "mitsuba"
@@ -193,11 +194,7 @@ def off_sphere_and_light(scene, sub: int = 16) -> np.ndarray:
     camera-side estimate: the lights' projected quads are left out, grown by
     one pixel. The caustic on the floor beside the sphere stays in.
     """
-    pix = np.repeat(np.arange(RES * RES), sub * sub)
-    g = (np.arange(sub) + 0.5) / sub
-    off = np.tile(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), (RES * RES, 1))
-    d = scene.camera.ray_directions((RES, RES), pix, off)
-    hit = Tracer(scene).intersect(np.broadcast_to(scene.camera.position, d.shape), d)
+    pix, hit = subpixel_hits(scene, RES, sub)
     sphere = np.zeros(RES * RES, bool)
     sphere[pix[hit.prim >= scene.n_triangles]] = True
     light = _light_pixels(scene)
