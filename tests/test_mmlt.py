@@ -9,7 +9,7 @@ from mcvar.integrators.emitters import LightOrigins
 from mcvar.integrators.light import _Context
 from mcvar.integrators.mmlt_lambertian import Workspace
 from mcvar.integrators.mmlt import MmltSettings, StateLayout, lockstep, mmlt_film, stratified_states
-from mcvar.integrators.mmlt import _direct_image
+from mcvar.integrators.mmlt import _direct_image, _morton, _systematic
 from mcvar.integrators.mmlt_states import bootstrap_splats, bootstrap_values, evaluate_states, strategy_columns
 from mcvar.scene import load_scene
 from mcvar.tracer import Tracer
@@ -53,6 +53,52 @@ def test_stratified_bootstrap_states_fill_every_pixel_and_each_pairs_cells():
     draws = np.array([stratified_states(256, 7, (8, 8), np.random.default_rng(100 + k))[0] for k in range(400)])
     for c in range(7):
         assert stats.kstest(draws[:, c], "uniform").pvalue > 1e-3
+
+
+def test_systematic_resampling_draws_each_candidate_in_proportion_to_its_weight():
+    """The chains' starts (:func:`_systematic`): over R independent offsets, candidate ``i``'s mean count
+    equals ``c w_i / sum(w)`` within 5 sigma (Sidak over the candidates; the count's variance is
+    at most ``e (1 - e)`` for ``e`` the fractional part of its expectation, a count being ``floor`` or
+    ``ceil`` of it, and otherwise derived from the runs' spread), and in *every* run any contiguous
+    stretch of the order holds ``c q`` draws to within one (``q`` its share of the weight): the
+    property independent draws lack (their spread is ``sqrt(c q (1 - q))``)."""
+    rng = np.random.default_rng(7)
+    rows, k, c, R = 300, 3, 257, 4000
+    w = rng.gamma(0.3, size=rows * k) * (rng.random(rows * k) < 0.5)      # sparse, skewed: many zeros
+    order = rng.permutation(rows)
+    counts = np.zeros((R, w.size))
+    for r in range(R):
+        cand = _systematic(w, c, order, k, np.random.default_rng(1000 + r))
+        counts[r] = np.bincount(cand, minlength=w.size)
+    expect = c * w / w.sum()
+    assert np.all(counts[:, w == 0] == 0)
+    frac = expect - np.floor(expect)
+    var = np.maximum(counts.var(axis=0, ddof=1), frac * (1 - frac))
+    z = (counts.mean(axis=0) - expect)[w > 0] / np.sqrt(var[w > 0] / R + 1e-300)
+    assert np.all(np.abs(z) < _z(z.size)), np.abs(z).max()
+    # contiguous stretches of the order: every run, every stretch, within one draw
+    idx = (order[:, None] * k + np.arange(k)).ravel()
+    cum_w = np.concatenate([[0.0], np.cumsum(w[idx])]) * (c / w.sum())
+    cum_n = np.concatenate([np.zeros((R, 1)), np.cumsum(counts[:, idx], axis=1)], axis=1)
+    a, b = rng.integers(0, idx.size + 1, size=(2, 500))
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    dev = (cum_n[:, hi] - cum_n[:, lo]) - (cum_w[hi] - cum_w[lo])
+    assert np.abs(dev).max() <= 1.0 + 1e-9
+
+
+def test_morton_codes_keep_nearby_pixels_nearby():
+    """:func:`_morton`: distinct codes for distinct pixels, and each aligned 2^j x 2^j block of pixels a
+    contiguous run of codes (the Z order the starts are resampled along)."""
+    res = (16, 8)
+    ix, iy = np.meshgrid(np.arange(16), np.arange(8), indexing="ij")
+    film = np.stack([(ix.ravel() + 0.5) / 16, (iy.ravel() + 0.5) / 8], axis=1)
+    code = _morton(film, res)
+    assert np.unique(code).size == 128
+    for j in (1, 2, 3):
+        block = (ix.ravel() >> j) * 100 + (iy.ravel() >> j)
+        for blk in np.unique(block):
+            cb = np.sort(code[block == blk])
+            assert cb[-1] - cb[0] == cb.size - 1
 
 
 def test_mmlt_is_unbiased_against_bdpt_per_block(cornell):
@@ -368,3 +414,16 @@ def test_workers_two_give_the_image_of_one_with_a_direct_part():
     kw = dict(method="mmlt", spp=4, res=8, rng=2212, batch_spp=2, max_depth=4, chains=64, n_bootstrap=4096,
               direct_depth=2)
     np.testing.assert_array_equal(render(scene, workers=1, **kw).image, render(scene, workers=2, **kw).image)
+
+
+@pytest.mark.parametrize("direct_depth", [0, 2])
+def test_depth_split_of_the_image_adds_up_and_scales_by_b(cornell, direct_depth):
+    """``MmltFilm.depth_sum`` / ``direct_sum`` (the image split by depth, for the oracle-``b``
+    measurement of docs/mcmc.md): they add to ``sum`` to rounding, the chains' depths carry mean
+    luminance ``b_d`` each (the estimator's normalisation, exact), and the direct depths nothing."""
+    f = mmlt_film(cornell, (8, 8), 16, rng=3, max_depth=4, chains=256, direct_depth=direct_depth)
+    np.testing.assert_allclose(f.depth_sum.sum(axis=0) + f.direct_sum, f.sum, rtol=1e-12, atol=1e-15)
+    lum = (f.depth_sum / f.spp) @ LUM
+    chain = np.arange(1, 5) > direct_depth
+    np.testing.assert_allclose(lum.mean(axis=1)[chain], f.b[chain], rtol=1e-9)
+    assert np.all(lum[~chain] == 0.0)

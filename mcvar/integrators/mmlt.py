@@ -253,6 +253,11 @@ class MmltFilm:
         and the effective sample size ``chains_d n_steps / tau_d``.
     n_steps : int
         Steps per chain.
+    depth_sum, direct_sum : ndarray, shape (max_depth, n_pix, 3) and (n_pix, 3)
+        ``sum`` split into the chains' part of each depth ``d = 1 .. max_depth`` (``b_d`` times the
+        chains' splats; zero for ``d <= direct_depth``) and the direct pass's:
+        ``depth_sum.sum(axis=0) + direct_sum == sum``. With ``b_d`` known exactly, ``depth_sum[d - 1] *
+        b_true / b[d - 1]`` is the image with the bootstrap's scale error removed (docs/mcmc.md).
     """
 
     sum: np.ndarray
@@ -268,6 +273,8 @@ class MmltFilm:
     tau: np.ndarray
     ess: np.ndarray
     n_steps: int
+    depth_sum: np.ndarray | None = None
+    direct_sum: np.ndarray | None = None
 
 
 def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
@@ -310,7 +317,7 @@ def stratified_states(n: int, dim: int, res, rng) -> np.ndarray:
     return x
 
 
-def _starts(fb, per_depth, max_depth: int, bootstrap: bool, rng):
+def _starts(fb, film, res, per_depth, max_depth: int, bootstrap: bool, rng):
     """The bootstrap candidates the chains start at: ``(rows, depth, s)`` per chain.
 
     ``fb`` (n, n_strategies): :func:`bootstrap_values`. The chains of depth
@@ -320,6 +327,7 @@ def _starts(fb, per_depth, max_depth: int, bootstrap: bool, rng):
     """
     n = fb.shape[0]
     cols = strategy_columns(max_depth)
+    order = np.argsort(_morton(film, res), kind="stable")
     rows, dep, strat = [], [], []
     for d in range(1, max_depth + 1):
         c = int(per_depth[d - 1])
@@ -328,7 +336,7 @@ def _starts(fb, per_depth, max_depth: int, bootstrap: bool, rng):
         js = [j for j, (dd, _) in enumerate(cols) if dd == d]
         w = fb[:, js].ravel()                              # candidate r * (d + 1) + s
         if bootstrap:
-            cand = rng.choice(w.size, size=c, p=w / w.sum())
+            cand = _systematic(w, c, order, d + 1, rng)
         else:
             lit = np.flatnonzero(w > 0)
             cand = lit[rng.integers(0, lit.size, size=c)]
@@ -336,6 +344,35 @@ def _starts(fb, per_depth, max_depth: int, bootstrap: bool, rng):
         strat.append(cand % (d + 1))
         dep.append(np.full(c, d))
     return np.concatenate(rows), np.concatenate(dep), np.concatenate(strat)
+
+
+def _morton(film, res):
+    """Each film position's pixel as its Morton (Z-order) code: nearby pixels, nearby codes."""
+    width, height = res
+    ix = np.minimum((film[:, 0] * width).astype(np.int64), width - 1)
+    iy = np.minimum((film[:, 1] * height).astype(np.int64), height - 1)
+    code = np.zeros(film.shape[0], dtype=np.int64)
+    for bit in range(max(width, height).bit_length()):
+        code |= ((ix >> bit) & 1) << (2 * bit) | ((iy >> bit) & 1) << (2 * bit + 1)
+    return code
+
+
+def _systematic(w, c: int, order, k: int, rng):
+    """``c`` draws among candidates ``∝ w`` by systematic resampling (Kitagawa 1996) along ``order``.
+
+    Candidate ``r k + s`` is row ``r``'s strategy ``s``; the rows are visited in ``order`` (by
+    pixel, :func:`_morton`). One uniform offset places ``c`` equally spaced points on the cumulative
+    weight: candidate ``i`` is drawn ``c w_i / sum(w)`` times in expectation (the property the
+    bootstrap's unbiasedness needs, as for independent draws), but every run of the order holding a
+    share ``q`` of the weight gets ``c q`` draws to within one, where independent draws scatter
+    them by ``sqrt(c q (1 - q))``. On cornell-door the pixels seen through the slit hold about
+    half of ``b_2`` and ``b_3`` and the chains rarely leave them, so that scatter was a scale
+    error on those pixels like ``b``'s own (docs/mcmc.md).
+    """
+    idx = (order[:, None] * k + np.arange(k)).ravel()
+    cum = np.cumsum(w[idx])
+    at = (rng.random() + np.arange(c)) * (cum[-1] / c)
+    return idx[np.minimum(np.searchsorted(cum, at, side="right"), idx.size - 1)]
 
 
 def _allocate(b, chains):
@@ -528,7 +565,7 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
                          "chains (raise n_bootstrap)")
     if b_chain.sum() > 0.0:
         per_depth = _allocate(b_chain, chains)
-        rows, dep, strat = _starts(fb, per_depth, depth_max, opts.bootstrap, rng)
+        rows, dep, strat = _starts(fb, cand[:, :2], res, per_depth, depth_max, opts.bootstrap, rng)
     else:                                              # the direct part holds every lit depth: no chain
         per_depth, rows, dep, strat = np.zeros(depth_max, dtype=np.int64), *np.zeros((3, 0), dtype=np.intp)
     x0 = cand[rows]
@@ -574,7 +611,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
                 values_d[d].append(values[:, cols])
                 acc_d[d] += n[cols].sum()
     acceptance, tau = _per_depth(values_d, acc_d, n_steps)
-    image = n_pix * (films.reshape(depth_max + 1, n_pix, 3)[1:] * b_chain[:, None, None]).sum(axis=0) + direct
+    depth_image = n_pix * films.reshape(depth_max + 1, n_pix, 3)[1:] * b_chain[:, None, None]
+    image = depth_image.sum(axis=0) + direct
     done = int(per_depth.sum()) * n_steps or n_mut
     ess = per_depth * n_steps / tau
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -582,7 +620,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
     return MmltFilm(sum=image * (done / n_pix), spp=done / n_pix, rays=rays[0], b=b, b_stderr=b_se,
                     chains=per_depth, acceptance_rate=n_acc / done if per_depth.sum() else np.nan,
                     acceptance=acceptance,
-                    acceptance_large=acc_kind[0], acceptance_small=acc_kind[1], tau=tau, ess=ess, n_steps=n_steps)
+                    acceptance_large=acc_kind[0], acceptance_small=acc_kind[1], tau=tau, ess=ess, n_steps=n_steps,
+                    depth_sum=depth_image * (done / n_pix), direct_sum=direct * (done / n_pix))
 
 
 def run_batch(job: BatchJob) -> BatchResult:
