@@ -76,12 +76,15 @@ __all__ = ["OPTIONS", "DEFAULT_MAX_DEPTH", "CHAIN_CHUNK", "BOOTSTRAP_CHUNK", "BO
            "run_batch"]
 
 #: The method's options and defaults: Kelemen's small step ``sigma`` (pbrt-v4:
-#: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3), the chains run
+#: 0.01), the large-step probability ``p_large`` (pbrt-v4: 0.3; here 0.03: the chains start
+#: ``∝ f`` from the bootstrap, which does the large steps' work of spreading them, and on
+#: cornell-door a large step is accepted 0.2-0.4 % of the time, so 0.3 spent 30 % of the
+#: evaluations on almost nothing: 0.03 measured 1.06-1.35x lower MSE, docs/mcmc.md), the chains run
 #: in lockstep, the bootstrap states per depth (None: see :func:`mmlt_film`),
 #: whether the chains start from the bootstrap (False: start-up bias), the
 #: evaluation kernel, and the depths rendered by BDPT instead of the chains
 #: (``direct_depth``, 0: none) with that pass's samples per mutation.
-OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.3, "n_bootstrap": None, "bootstrap": True,
+OPTIONS = {"chains": 16384, "sigma": 0.01, "p_large": 0.03, "n_bootstrap": None, "bootstrap": True,
            "kernel": "auto", "direct_depth": 0, "direct_share": 1.0}
 
 #: The depth (segments) a render with ``max_depth=None`` uses: the state has a
