@@ -508,9 +508,8 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
         dominates the MSE on cornell-door (about 70 % of it at ``0.2 N``); a bootstrap sample costs
         about five mutations, and ``0.2 N`` balanced the two at equal time (docs/mcmc.md, 'MMLT').
     bootstrap : bool
-        True: start the chains at bootstrap states resampled ``∝ f_d``;
-        False: at uniformly drawn lit bootstrap states of their depth
-        (start-up bias, for the measurement).
+        True: start the chains at bootstrap states resampled ``∝ f_d``; False: at uniformly
+        drawn lit bootstrap states of their depth (start-up bias, for the measurement).
     direct_depth : int
         Depths ``1 .. direct_depth`` (2: emission seen and direct light) by BDPT (:func:`_direct_image`,
         stratified per pixel), the chains at the depths above only (0: every depth by the chains).
@@ -524,10 +523,9 @@ def mmlt_film(scene: Scene, res, spp: float, *, rng=None, tracer=None, settings:
 
         I_j = sum_d b_d / N_d * sum_k n_pix [(1 - a_k) 1_j(x_k) c(x_k) / f(x_k) + a_k 1_j(y_k) c(y_k) / f(y_k)]
 
-    (expected-value splatting of the current state ``x_k`` and the proposal
-    ``y_k``; ``c = rgb``, ``f = Y(c)``), so the image's mean luminance is
-    ``sum_d b_d`` exactly. ``b_d`` comes from the bootstrap (an unbiased
-    estimate, a global scale per depth).
+    (expected-value splatting of the current state ``x_k`` and the proposal ``y_k``; ``c = rgb``,
+    ``f = Y(c)``), so the image's mean luminance is ``sum_d b_d`` exactly. ``b_d`` comes from the
+    bootstrap (an unbiased estimate, a global scale per depth).
     """
     opts = settings_with(MmltSettings, settings, options, "mmlt_film")
     depth_max, chains, sigma, p_large, n_boot, layout = _check(opts)
