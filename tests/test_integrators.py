@@ -499,6 +499,51 @@ def test_any_executor_renders_the_same_image(cornell):
         render(cornell, executor=4)
 
 
+def _batch_recording_who(folder, parent, job):
+    """``path``'s run_batch, leaving a file ``<batch>-<pid>``; the pool process's
+    first batch sleeps, so that the pool holds a second batch queued behind it."""
+    import os
+    import time
+    from pathlib import Path
+
+    from mcvar.integrators.path import run_path_batch
+
+    i = job.rng.bit_generator.seed_seq.spawn_key[-1]          # the batch's index in its stage
+    if os.getpid() != parent and not any(f.name.endswith(f"-{os.getpid()}") for f in Path(folder).iterdir()):
+        time.sleep(1.5)
+    (Path(folder) / f"{i}-{os.getpid()}").touch()
+    return run_path_batch("path", job)
+
+
+def test_the_caller_takes_a_batch_the_pool_has_queued_but_not_started(cornell, tmp_path):
+    """Three batches, two workers: the pool starts batch 0 (slow) with batch 1
+    already in its process's queue (ProcessPoolExecutor: no longer cancellable);
+    the caller takes batch 2, then claims batch 1 (:class:`_Claims`), so the
+    pool skips it. Every batch runs once, in one of the two processes, and the
+    image is that of one worker."""
+    import os
+    from functools import partial
+
+    from mcvar.integrators import METHODS
+    from mcvar.integrators.driver import _Claims, _pool_context
+
+    claims = _Claims(_pool_context())
+    a, b = claims.number(), claims.number()
+    assert claims.claim(b) and not claims.claim(b) and claims.claim(a) and not claims.claim(a)
+    assert claims.claim(b + _Claims.RING)                     # a later batch in the same slot
+
+    method = dataclasses.replace(METHODS["path"], run_batch=partial(_batch_recording_who, str(tmp_path),
+                                                                    os.getpid()))
+    kw = dict(spp=3, res=8, rng=SEED + 160, batch_spp=1, sampler="sobol")
+    two = render(cornell, method=method, workers=2, **kw)
+    runs = [f.name.split("-") for f in tmp_path.iterdir()]
+    who = dict(runs)
+    assert sorted(i for i, _ in runs) == ["0", "1", "2"], runs   # each batch once
+    assert who["0"] != str(os.getpid())                      # the pool ran the first ...
+    assert who["1"] == who["2"] == str(os.getpid()), who    # ... the caller the two others
+    np.testing.assert_array_equal(two.image, render(cornell, **kw).image)
+
+
 def test_the_render_pool_receives_the_tracer_once_not_with_every_batch(cornell, monkeypatch):
     """A pool's processes get the render's scene, tracer and prepared data when they
     start; a batch then pickles them as a token, so what is submitted per batch is a
