@@ -172,10 +172,10 @@ def trace_lambertian(tr: Transport, o, d, *, slots: int | None = None) -> None:
     fresh = 0                               # rows fresh.. are new camera paths
     limit = tr.limit
     while state.n:
-        t, prim = tracer.closest_soa(state.o, state.d)
+        t, prim = tracer.closest_soa(state.o, state.d, t_dtype=dt)    # float32 t: no float64 round trip
         m = state.n
         if tr.visible and fresh < m:
-            tr.camera_hits(_rows(state, fresh, m), t[fresh:], prim[fresh:])
+            tr.camera_hits(_rows(state, fresh, m), t[fresh:].astype(np.float64), prim[fresh:])
         t = t.astype(dt, copy=False)
         tr.rays += m
         alive = None
