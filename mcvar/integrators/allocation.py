@@ -44,7 +44,7 @@ from .stream import WHOLE_SET_FLOATS, whole_dims, whole_pattern
 
 __all__ = ["Uniform", "Adaptive", "AdaptiveRender", "allocate", "get_allocation", "ALLOCATIONS",
            "PATHS_PER_BATCH", "ADAPTIVE_DIM", "PILOT_MAX_DEPTH", "PILOT_PATHS_PER_BATCH", "PILOT_BATCHES",
-           "pilot_batch_paths", "MAIN_PATHS_PER_BATCH", "MAIN_BATCHES", "main_batch_paths"]
+           "pilot_batch_paths", "MAIN_PATHS_PER_BATCH", "MAIN_BATCHES", "main_batch_paths", "TAIL_SPLIT"]
 
 #: Paths per batch when ``batch_spp`` is not given: big enough that per-bounce
 #: overhead is small, small enough that two processes do not fight over the
@@ -281,29 +281,45 @@ class Uniform:
                           rays=film.rays + (caustic.rays if caustic else 0), batch_spp=b, extra=extra)
 
 
-def _level_specs(levels, paths_per_batch: int):
+#: The second stage's last batches, a batch's worth of paths, are each cut into
+#: this many (:func:`_level_specs`): two workers take whole batches, so the one
+#: that finishes first waits for the other's last batch; quarter batches at the
+#: end make that wait about a quarter as long (docs/performance.md, 'Two
+#: workers: the end of a stage').
+TAIL_SPLIT = 4
+
+
+def _level_specs(levels, paths_per_batch: int, tail_split: int = 1) -> list:
     """Batches of at most ``paths_per_batch`` paths for (n, pixels) levels: many
     pixels per batch where ``n`` is small, a pixel's samples in several
-    batches where ``n`` exceeds the batch (each its own sample set)."""
+    batches where ``n`` exceeds the batch (each its own sample set).
+
+    With ``tail_split > 1`` (the second stage: :data:`TAIL_SPLIT`) the last
+    batches, from the end until they hold ``paths_per_batch`` paths, are cut
+    by pixels into ``tail_split`` pieces each (a batch of one pixel stays
+    whole). A pixel's samples of a level stay in one batch either way, so
+    each pixel's estimate has the same distribution.
+    """
+    specs = []
     for n, pixels in levels:
         if n <= paths_per_batch:
             per = paths_per_batch // n
-            for a in range(0, pixels.shape[0], per):
-                yield Spec(pixels[a:a + per], n)
+            specs += [Spec(pixels[a:a + per], n) for a in range(0, pixels.shape[0], per)]
         else:
-            for p in range(pixels.shape[0]):
-                for a in range(0, n, paths_per_batch):
-                    yield Spec(pixels[p:p + 1], min(paths_per_batch, n - a))
-
-
-def _count_level_specs(levels, paths_per_batch: int) -> int:
-    total = 0
-    for n, pixels in levels:
-        if n <= paths_per_batch:
-            total += -(-pixels.shape[0] // (paths_per_batch // n))
-        else:
-            total += pixels.shape[0] * -(-n // paths_per_batch)
-    return total
+            specs += [Spec(pixels[p:p + 1], min(paths_per_batch, n - a))
+                      for p in range(pixels.shape[0]) for a in range(0, n, paths_per_batch)]
+    if tail_split <= 1:
+        return specs
+    k, total = len(specs), 0
+    while k and total < paths_per_batch:
+        k -= 1
+        total += specs[k].pixels.shape[0] * specs[k].spp
+    tail = []
+    for spec in specs[k:]:
+        px = spec.pixels
+        step = -(-px.shape[0] // tail_split)
+        tail += [Spec(px[a:a + step], spec.spp) for a in range(0, px.shape[0], step)]
+    return specs[:k] + tail
 
 
 @dataclass(frozen=True, eq=False)
@@ -463,8 +479,8 @@ class Adaptive:
                 # the pilot only ranks pixels: its paths are cut at PILOT_MAX_DEPTH
                 # segments, and the image never sees them
                 levels = [(pilot, np.arange(n_pix))]
-                run.stage(_level_specs(levels, self.pilot_paths_per_batch),
-                          _count_level_specs(levels, self.pilot_paths_per_batch), run.streams.stage[0],
+                specs = _level_specs(levels, self.pilot_paths_per_batch)
+                run.stage(iter(specs), len(specs), run.streams.stage[0],
                           sink(pilot_film), settings=self._pilot_settings(plan))
                 s, sq = pilot_film.total, pilot_film.total_sq
                 var = np.maximum(sq - s * s / pilot, 0.0) / (pilot - 1)
@@ -475,7 +491,8 @@ class Adaptive:
             levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
             caustic = caustic_stage(run)
             per = self.paths_per_batch
-            run.stage(_level_specs(levels, per), _count_level_specs(levels, per), run.streams.stage[1], sink(film))
+            specs = _level_specs(levels, per, TAIL_SPLIT)
+            run.stage(iter(specs), len(specs), run.streams.stage[1], sink(film))
         except KeyboardInterrupt:
             run.interrupted = True
         return self._result(run, pilot_film, film, counts, caustic)
