@@ -516,11 +516,12 @@ def _batch_recording_who(folder, parent, job):
 
 
 def test_the_caller_takes_a_batch_the_pool_has_queued_but_not_started(cornell, tmp_path):
-    """Three batches, two workers: the pool starts batch 0 (slow) with batch 1
+    """Ten batches, two workers: the pool starts batch 0 (slow) with batch 1
     already in its process's queue (ProcessPoolExecutor: no longer cancellable);
-    the caller takes batch 2, then claims batch 1 (:class:`_Claims`), so the
-    pool skips it. Every batch runs once, in one of the two processes, and the
-    image is that of one worker."""
+    the caller takes the newest batches, then claims batch 1 (:class:`_Claims`),
+    so the pool skips it, and keeps submitting and running new batches while
+    batch 0 runs (the window counts batches without a result). Every batch runs
+    once, in one of the two processes, and the image is that of one worker."""
     import os
     from functools import partial
 
@@ -534,13 +535,13 @@ def test_the_caller_takes_a_batch_the_pool_has_queued_but_not_started(cornell, t
 
     method = dataclasses.replace(METHODS["path"], run_batch=partial(_batch_recording_who, str(tmp_path),
                                                                     os.getpid()))
-    kw = dict(spp=3, res=8, rng=SEED + 160, batch_spp=1, sampler="sobol")
+    kw = dict(spp=10, res=8, rng=SEED + 160, batch_spp=1, sampler="sobol")
     two = render(cornell, method=method, workers=2, **kw)
     runs = [f.name.split("-") for f in tmp_path.iterdir()]
     who = dict(runs)
-    assert sorted(i for i, _ in runs) == ["0", "1", "2"], runs   # each batch once
-    assert who["0"] != str(os.getpid())                      # the pool ran the first ...
-    assert who["1"] == who["2"] == str(os.getpid()), who    # ... the caller the two others
+    assert sorted(int(i) for i, _ in runs) == list(range(10)), runs   # each batch once
+    assert who["0"] != str(os.getpid())                               # the pool ran the first ...
+    assert all(who[str(i)] == str(os.getpid()) for i in range(1, 10)), who   # ... the caller the others
     np.testing.assert_array_equal(two.image, render(cornell, **kw).image)
 
 

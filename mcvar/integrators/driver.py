@@ -324,7 +324,10 @@ def _in_order(batches, executor, parent_works: bool):
     source = iter(batches)
     try:
         while True:
-            while len(pending) < window:
+            # the window counts batches without a result here: those this process
+            # ran wait only for their turn (results in order), and must not keep
+            # the pool from getting new batches while the oldest is still running
+            while sum(e[2] is None for e in pending) < window:
                 batch = next(source, None)
                 if batch is None:
                     break
