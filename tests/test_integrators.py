@@ -518,7 +518,7 @@ def _batch_recording_who(folder, parent, job):
 def test_the_caller_takes_a_batch_the_pool_has_queued_but_not_started(cornell, tmp_path):
     """Ten batches, two workers: the pool starts batch 0 (slow) with batch 1
     already in its process's queue (ProcessPoolExecutor: no longer cancellable);
-    the caller takes the newest batches, then claims batch 1 (:class:`_Claims`),
+    the caller takes the batches no worker has received, then claims batch 1 (:class:`_Claims`),
     so the pool skips it, and keeps submitting and running new batches while
     batch 0 runs (the window counts batches without a result). Every batch runs
     once, in one of the two processes, and the image is that of one worker."""

@@ -120,10 +120,10 @@ class WorkerPool(Executor):
     """A local process pool with a lifetime, for one render or many.
 
     ``render(..., workers=n)`` makes one of ``n - 1`` processes for the render
-    (the calling process is the n-th worker: it takes not-yet-started batches
-    from the end of the queue while the pool works from the front, so two
-    workers on a machine whose second core is busy cost little more than
-    one) and shuts it down at the end. Passed as ``executor``, a pool does all
+    (the calling process is the n-th worker: it takes the oldest batch no
+    pool process has received, else one a pool process holds but has not
+    started, while the pool works from the front, so two workers on a machine
+    whose second core is busy cost little more than one) and shuts it down at the end. Passed as ``executor``, a pool does all
     the work and the caller waits. To keep warm processes over several renders (a fresh process
     spends its first batch at about half speed touching new memory), make
     one and pass it::
@@ -310,8 +310,10 @@ def _in_order(batches, executor, parent_works: bool):
 
     ``executor`` None: in this process. Otherwise a bounded window is
     submitted; with ``parent_works`` this process, while the oldest batch
-    is still running, cancels the newest batch no worker has started and
-    runs it itself. A batch's result depends only on its description, so
+    is still running, takes the oldest batch no worker has received
+    (cancelled), else, where the pool shares :class:`_Claims`, the newest one
+    a pool process holds but has not started (claimed first), and runs it
+    itself. A batch's result depends only on its description, so
     neither who ran it nor when changes the image.
     """
     if executor is None:
@@ -342,8 +344,13 @@ def _in_order(batches, executor, parent_works: bool):
                 return
             head = pending[0]
             if head[2] is None and parent_works and not head[1].done():
-                stolen = next((e for e in reversed(pending) if e[2] is None and (
-                    e[1].cancel() or (claims is not None and not e[1].done() and claims.claim(e[3])))), None)
+                # the oldest batch no worker has received (so that the second stage's
+                # small last batches stay last for both processes), else the newest
+                # one queued in a pool process but not started (claimed first)
+                stolen = next((e for e in pending if e[2] is None and e[1].cancel()), None)
+                if stolen is None and claims is not None:
+                    stolen = next((e for e in reversed(pending) if e[2] is None and not e[1].done()
+                                   and claims.claim(e[3])), None)
                 if stolen is not None:
                     stolen[2] = (_run_batch(stolen[0]),)
                     continue
