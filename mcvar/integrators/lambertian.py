@@ -278,7 +278,7 @@ def _next_event(tr: Transport, lt: _Tables, state: PathState, cols, p, fn, sgn, 
     """NEE: ``beta (albedo / pi) Le cos_i w_light / p_light`` over unoccluded
     samples, with ``p_bsdf = cos_i / pi``."""
     idx = state.idx
-    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, cols.vertex(None, LIGHT, 2, idx, p.dtype), None)
+    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, cols.vertex(None, LIGHT, 2, idx, p.dtype), None, radiance=False)
     cos_i = dot(w, fn)
     cos_i *= sgn                            # local wi.y in the flipped frame
     ok = cos_i > 0.0
