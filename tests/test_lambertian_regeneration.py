@@ -240,14 +240,15 @@ def test_the_tail_split_keeps_every_pixel_whole_in_one_batch(sizes, per):
     stage, so each pixel keeps all its n samples in one batch (its estimate has
     the distribution it had before the cut); the batches before the cut
     unchanged, and the cut batches at most a TAIL_SPLIT-th of their batch."""
-    from mcvar.integrators.allocation import TAIL_SPLIT, _level_specs
+    from mcvar.integrators.allocation import TAIL_SPLIT, _count_level_specs, _level_specs
 
     rng = np.random.default_rng(SEED + 40)
     pix = rng.permutation(sum(sizes))
     ns = [2 ** (len(sizes) + 2 - i) for i in range(len(sizes))]          # most samples first
     levels = [(n, pix[a - k:a]) for n, k, a in zip(ns, sizes, np.cumsum(sizes))]
     batch = per * ns[-1]
-    old, new = _level_specs(levels, batch), _level_specs(levels, batch, TAIL_SPLIT)
+    old, new = list(_level_specs(levels, batch)), list(_level_specs(levels, batch, TAIL_SPLIT))
+    assert len(new) == _count_level_specs(levels, batch, TAIL_SPLIT) and len(old) == _count_level_specs(levels, batch)
 
     def flat(specs):
         return (np.concatenate([s.pixels for s in specs]), np.concatenate([np.full(s.pixels.size, s.spp) for s in specs]))
