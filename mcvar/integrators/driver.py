@@ -329,7 +329,8 @@ def _in_order(batches, executor, parent_works: bool):
             # the window counts batches without a result here: those this process
             # ran wait only for their turn (results in order), and must not keep
             # the pool from getting new batches while the oldest is still running
-            while sum(e[2] is None for e in pending) < window:
+            # (at most 8 windows of results held, should a pool process stall)
+            while sum(e[2] is None for e in pending) < window and len(pending) < 8 * window:
                 batch = next(source, None)
                 if batch is None:
                     break
