@@ -451,7 +451,10 @@ class Tracer:
         ok &= t > self.epsilon
         return t, ok
 
-    def _closest_block(self, blk, o4, d, tmax):
+    def _closest_block(self, blk, o4, d):
+        """Nearest hit of each ray in ``blk``: ``(t, prim)``, ``t`` inf where none.
+        Not cut at the rays' ``tmax``: both callers keep a hit only where it is
+        nearer than their best so far, which is at most ``tmax``."""
         t, ok = self._block_t(blk, o4, d)
         if blk.k == 1:
             best = np.where(ok[0], t[0], np.inf)
@@ -475,7 +478,6 @@ class Tracer:
             j = np.argmin(t, axis=0)
             best = np.take_along_axis(t, j[None], axis=0)[0]
             prim = np.take(blk.idx, j)
-        best[~(best < tmax)] = np.inf
         return best, prim
 
     def _as_rays(self, o, d, tmax):
@@ -488,11 +490,12 @@ class Tracer:
         tm = np.full(n, np.inf, self.dtype) if tmax is None else np.asarray(tmax, dtype=self.dtype)
         return o4, d, tm
 
-    def _closest_triangles(self, o, d, tmax):
+    def _closest_triangles(self, o, d, tmax, t_dtype=np.float64):
         n = o.shape[1]
         if self.accel == "bvh":
             tm = np.full(n, np.inf) if tmax is None else tmax
-            return _bvh.closest(self._bvh, o, d, tm, self.epsilon)
+            t, prim = _bvh.closest(self._bvh, o, d, tm, self.epsilon)
+            return t.astype(t_dtype, copy=False), prim
         o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.full(n, np.inf, dtype=self.dtype)
         p_out = np.full(n, -1, dtype=np.int64)
@@ -505,7 +508,7 @@ class Tracer:
             tb, pb = t_out[sl], p_out[sl]            # views: written in place
             tb[:] = tm[sl]
             for blk in open_blocks:
-                t, p = self._closest_block(blk, oc, dc, tb)
+                t, p = self._closest_block(blk, oc, dc)
                 better = t < tb
                 np.copyto(tb, t, where=better)
                 np.copyto(pb, p, where=better)
@@ -526,13 +529,14 @@ class Tracer:
             for s in range(0, sel_all.size, self.chunk):
                 sel = sel_all[s:s + self.chunk]
                 tsel = np.take(t_out, sel)
-                t, p = self._closest_block(blk, np.take(o4, sel, axis=1), np.take(d, sel, axis=1), tsel)
+                t, p = self._closest_block(blk, np.take(o4, sel, axis=1), np.take(d, sel, axis=1))
                 better = t < tsel
                 hit = sel[better]
                 t_out[hit] = t[better]
                 p_out[hit] = p[better]
-        t_out[p_out < 0] = np.inf
-        return t_out.astype(np.float64), p_out
+        if tmax is not None:                     # else a row without a hit kept tm = inf
+            t_out[p_out < 0] = np.inf
+        return t_out.astype(t_dtype, copy=False), p_out
 
     def _any_triangles(self, o, d, tmax, keys):
         n = o.shape[1]
@@ -635,15 +639,17 @@ class Tracer:
     # ------------------------------------------------------------------
     # Internal entry points for the wavefront loop: SoA (3, n) float64, no checks
 
-    def closest_soa(self, o, d, tmax=None):
+    def closest_soa(self, o, d, tmax=None, *, t_dtype=np.float64):
         """Closest hits of SoA rays ``o, d`` of shape (3, n): ``(t, prim)``.
 
         Internal fast path of :meth:`intersect` for already-checked arrays
-        (the integrators' wavefront loop); ``t`` is float64, inf on a miss.
+        (the integrators' wavefront loop); ``t`` is float64 (``t_dtype``:
+        the triangle test's float32 distances without the round trip through
+        float64, for a scene without spheres), inf on a miss.
         """
         n = o.shape[1]
         if self.n_triangles:
-            t, prim = self._closest_triangles(o, d, tmax)
+            t, prim = self._closest_triangles(o, d, tmax, t_dtype if not self.n_spheres else np.float64)
         else:
             t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
         if self.n_spheres:

@@ -120,7 +120,7 @@ def _path_batch_recording_pid(folder, job):
 
 
 def test_two_workers_split_batches_between_the_parent_and_the_pool(cornell, tmp_path):
-    """With ``workers=2`` the caller renders batches too (taken from the queue's end)
+    """With ``workers=2`` the caller renders batches too (those no worker has started)
     and the pool the others; the image is still that of ``workers=1``. The method is
     ``path`` with a run_batch that records who ran each batch (a Method object need
     not be registered), and 64 pilot batches of one pixel: no module attribute is patched."""

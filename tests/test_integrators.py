@@ -499,6 +499,52 @@ def test_any_executor_renders_the_same_image(cornell):
         render(cornell, executor=4)
 
 
+def _batch_recording_who(folder, parent, job):
+    """``path``'s run_batch, leaving a file ``<batch>-<pid>``; the pool process's
+    first batch sleeps, so that the pool holds a second batch queued behind it."""
+    import os
+    import time
+    from pathlib import Path
+
+    from mcvar.integrators.path import run_path_batch
+
+    i = job.rng.bit_generator.seed_seq.spawn_key[-1]          # the batch's index in its stage
+    if os.getpid() != parent and not any(f.name.endswith(f"-{os.getpid()}") for f in Path(folder).iterdir()):
+        time.sleep(1.5)
+    (Path(folder) / f"{i}-{os.getpid()}").touch()
+    return run_path_batch("path", job)
+
+
+def test_the_caller_takes_a_batch_the_pool_has_queued_but_not_started(cornell, tmp_path):
+    """Twenty batches, two workers: the pool process's first batch is slow, with
+    the next one already in its process's queue (ProcessPoolExecutor: no longer
+    cancellable); the caller takes the batches no worker has received, claims
+    the queued one (:class:`_Claims`), so the pool skips it, and keeps submitting
+    and running new batches while the slow one runs (the window counts batches
+    without a result). So every batch runs once and the pool runs exactly one;
+    the image is that of one worker."""
+    import os
+    from functools import partial
+
+    from mcvar.integrators import METHODS
+    from mcvar.integrators.driver import _Claims, _pool_context
+
+    claims = _Claims(_pool_context())
+    a, b = claims.number(), claims.number()
+    assert claims.claim(b) and not claims.claim(b) and claims.claim(a) and not claims.claim(a)
+    assert claims.claim(b + _Claims.RING)                     # a later batch in the same slot
+
+    method = dataclasses.replace(METHODS["path"], run_batch=partial(_batch_recording_who, str(tmp_path),
+                                                                    os.getpid()))
+    kw = dict(spp=20, res=8, rng=SEED + 160, batch_spp=1, sampler="sobol")
+    two = render(cornell, method=method, workers=2, **kw)
+    runs = [f.name.split("-") for f in tmp_path.iterdir()]
+    assert sorted(int(i) for i, _ in runs) == list(range(20)), runs   # each batch once
+    in_pool = [i for i, pid in runs if pid != str(os.getpid())]
+    assert len(in_pool) == 1, runs                                    # the slow one; the caller the others
+    np.testing.assert_array_equal(two.image, render(cornell, **kw).image)
+
+
 def test_the_render_pool_receives_the_tracer_once_not_with_every_batch(cornell, monkeypatch):
     """A pool's processes get the render's scene, tracer and prepared data when they
     start; a batch then pickles them as a token, so what is submitted per batch is a

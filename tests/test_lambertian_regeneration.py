@@ -26,7 +26,7 @@ from mcvar.warps import _cosine_hemisphere_polar_unchecked, square_to_cosine_hem
 SEED = 20261202
 #: the statistical comparisons below (tests x channels): a family-wise two-sided
 #: 5-sigma level, Sidak-corrected over them (per comparison |z| < 5.6)
-N_STAT = 6 * 3
+N_STAT = 7 * 3
 ALPHA = sidak_significance(2 * stats.norm.sf(5.0), N_STAT)
 Z = stats.norm.isf(ALPHA / 2)
 
@@ -228,3 +228,62 @@ def test_only_renders_the_regenerating_kernel_traces_get_the_larger_batches(corn
     assert per(cornell, allocation=Adaptive(paths_per_batch=4096)) == 4096
     with pytest.raises(ValueError, match="paths_per_batch"):
         Adaptive(paths_per_batch=0)
+
+
+# -- the second stage's last batch, cut in TAIL_SPLIT -----------------------------
+
+@pytest.mark.parametrize("sizes,per", [((1000, 50000), 8192), ((3, 40, 90), 16), ((7,), 64), ((100, 1), 7)])
+def test_the_tail_split_keeps_every_pixel_whole_in_one_batch(sizes, per):
+    """The cut of the second stage's last batches (a batch's worth of paths) into
+    TAIL_SPLIT pieces (allocation._level_specs): the same pixels with the same
+    samples in the same order, every piece inside one batch of the uncut
+    stage, so each pixel keeps all its n samples in one batch (its estimate has
+    the distribution it had before the cut); the batches before the cut
+    unchanged, and the cut batches at most a TAIL_SPLIT-th of their batch."""
+    from mcvar.integrators.allocation import TAIL_SPLIT, _count_level_specs, _level_specs
+
+    rng = np.random.default_rng(SEED + 40)
+    pix = rng.permutation(sum(sizes))
+    ns = [2 ** (len(sizes) + 2 - i) for i in range(len(sizes))]          # most samples first
+    levels = [(n, pix[a - k:a]) for n, k, a in zip(ns, sizes, np.cumsum(sizes))]
+    batch = per * ns[-1]
+    old, new = list(_level_specs(levels, batch)), list(_level_specs(levels, batch, TAIL_SPLIT))
+    assert len(new) == _count_level_specs(levels, batch, TAIL_SPLIT) and len(old) == _count_level_specs(levels, batch)
+
+    def flat(specs):
+        return (np.concatenate([s.pixels for s in specs]), np.concatenate([np.full(s.pixels.size, s.spp) for s in specs]))
+    for x, y in zip(flat(old), flat(new)):
+        assert np.array_equal(x, y)
+    edges_old = set(np.cumsum([s.pixels.size for s in old]))
+    edges_new = set(np.cumsum([s.pixels.size for s in new]))
+    assert edges_old <= edges_new                                      # no piece crosses a batch boundary
+    k = len(old)
+    while k and sum(s.pixels.size * s.spp for s in old[k:]) < batch:
+        k -= 1
+    assert all(np.array_equal(a.pixels, b.pixels) and a.spp == b.spp for a, b in zip(old[:k], new[:k]))  # as they were
+    for parent in old[k:]:
+        pieces = [s for s in new[k:] if np.shares_memory(s.pixels, parent.pixels)]
+        assert len(pieces) == min(TAIL_SPLIT, parent.pixels.size)
+        assert max(s.pixels.size for s in pieces) <= -(-parent.pixels.size // TAIL_SPLIT)
+    assert sum(s.pixels.size * s.spp for s in old[k:]) >= min(batch, sum(n * m for n, m in zip(ns, sizes)))
+
+
+def test_the_tail_split_render_agrees_with_uncut_batches(cornell, monkeypatch):
+    """render_adaptive with the last batch cut (TAIL_SPLIT) against the batches
+    before the change (TAIL_SPLIT = 1), R = 10 independent seeds each, batches
+    of 2,048 paths (the cut applies to the last 2,048 paths of 8,192): the image means by Welch's t at the
+    5-sigma level."""
+    from mcvar.adaptive import ADAPTIVE_SETTINGS
+    from mcvar.integrators import Adaptive, allocation
+
+    R = 10
+    seeds = np.random.SeedSequence(SEED + 50).spawn(2 * R)
+
+    def means(ss):
+        return np.array([render(cornell, spp=32, res=16, sampler="sobol", rng=s, allocation=Adaptive(paths_per_batch=2048),
+                                **ADAPTIVE_SETTINGS).image.mean(axis=(0, 1)) for s in ss])
+    a = means(seeds[:R])
+    monkeypatch.setattr(allocation, "TAIL_SPLIT", 1)
+    b = means(seeds[R:])
+    t, p = stats.ttest_ind(a, b, axis=0, equal_var=False)
+    assert np.all(p > ALPHA), (a.mean(0), b.mean(0), t, p)

@@ -101,3 +101,21 @@ def test_bad_light_sampling(cornell):
         render(cornell, spp=1, res=4, light_sampling="cosine")
     with pytest.raises(ValueError, match="rectangle"):
         warps._rectangle_soa_frame([1.0, 0.0, 0.0], [1.0, 1.0, 0.0])
+
+
+def test_light_sample_without_radiance_is_the_same_sample(cornell):
+    """``sample_li(..., radiance=False)`` (the Lambertian kernel's NEE, which takes
+    ``Le`` from its own table) returns the same directions, distances, densities
+    and light indices exactly, and no radiance; points on the ceiling (behind the
+    light's plane) included, where ``le`` would be masked."""
+    em = Emitters(cornell)
+    rng = np.random.default_rng(SEED + 7)
+    m = 4000
+    p = np.stack([rng.uniform(1, 550, m), rng.uniform(1, 548, m), rng.uniform(1, 558, m)]).astype(np.float32)
+    p[1, : m // 4] = cornell.triangles[:, :, 1].max()           # the ceiling: behind the light
+    u = rng.random((2, m), dtype=np.float32)
+    a, b = em.sample_li(p, u, None), em.sample_li(p, u, None, radiance=False)
+    assert not np.all(a[3] > 0) and np.any(a[3] > 0)
+    for i in (0, 1, 3, 4):
+        assert np.array_equal(a[i], b[i])
+    assert b[2] is None and a[2].shape == (3, m)

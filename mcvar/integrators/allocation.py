@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +45,7 @@ from .stream import WHOLE_SET_FLOATS, whole_dims, whole_pattern
 
 __all__ = ["Uniform", "Adaptive", "AdaptiveRender", "allocate", "get_allocation", "ALLOCATIONS",
            "PATHS_PER_BATCH", "ADAPTIVE_DIM", "PILOT_MAX_DEPTH", "PILOT_PATHS_PER_BATCH", "PILOT_BATCHES",
-           "pilot_batch_paths", "MAIN_PATHS_PER_BATCH", "MAIN_BATCHES", "main_batch_paths"]
+           "pilot_batch_paths", "MAIN_PATHS_PER_BATCH", "MAIN_BATCHES", "main_batch_paths", "TAIL_SPLIT"]
 
 #: Paths per batch when ``batch_spp`` is not given: big enough that per-bounce
 #: overhead is small, small enough that two processes do not fight over the
@@ -281,10 +282,16 @@ class Uniform:
                           rays=film.rays + (caustic.rays if caustic else 0), batch_spp=b, extra=extra)
 
 
-def _level_specs(levels, paths_per_batch: int):
-    """Batches of at most ``paths_per_batch`` paths for (n, pixels) levels: many
-    pixels per batch where ``n`` is small, a pixel's samples in several
-    batches where ``n`` exceeds the batch (each its own sample set)."""
+#: The second stage's last batches, a batch's worth of paths, are each cut into
+#: this many (:func:`_level_specs`): two workers take whole batches, so the one
+#: that finishes first waits for the other's last batch; quarter batches at the
+#: end make that wait about a quarter as long (docs/performance.md, 'Two
+#: workers: the end of a stage').
+TAIL_SPLIT = 4
+
+
+def _plain_specs(levels, paths_per_batch: int):
+    """Batches of at most ``paths_per_batch`` paths for (n, pixels) levels, lazily."""
     for n, pixels in levels:
         if n <= paths_per_batch:
             per = paths_per_batch // n
@@ -296,14 +303,68 @@ def _level_specs(levels, paths_per_batch: int):
                     yield Spec(pixels[p:p + 1], min(paths_per_batch, n - a))
 
 
-def _count_level_specs(levels, paths_per_batch: int) -> int:
+def _level_specs(levels, paths_per_batch: int, tail_split: int = 1):
+    """Batches of at most ``paths_per_batch`` paths for (n, pixels) levels: many
+    pixels per batch where ``n`` is small, a pixel's samples in several
+    batches where ``n`` exceeds the batch (each its own sample set); made
+    lazily (a pilot of 2^35 samples per pixel is 2^28 batches).
+
+    With ``tail_split > 1`` (the second stage: :data:`TAIL_SPLIT`) the last
+    batches, from the end until they hold ``paths_per_batch`` paths, are cut
+    by pixels into ``tail_split`` pieces each (a batch of one pixel stays
+    whole); only those are held back until the end. A pixel's samples of a
+    level stay in one batch either way, so each pixel's estimate has the same
+    distribution.
+    """
+    specs = _plain_specs(levels, paths_per_batch)
+    if tail_split <= 1:
+        yield from specs
+        return
+    held, paths = deque(), 0
+    for spec in specs:
+        held.append(spec)
+        paths += spec.pixels.shape[0] * spec.spp
+        while paths - held[0].pixels.shape[0] * held[0].spp >= paths_per_batch:
+            first = held.popleft()
+            paths -= first.pixels.shape[0] * first.spp
+            yield first
+    for spec in held:
+        px = spec.pixels
+        step = -(-px.shape[0] // tail_split)
+        for a in range(0, px.shape[0], step):
+            yield Spec(px[a:a + step], spec.spp)
+
+
+def _count_level_specs(levels, paths_per_batch: int, tail_split: int = 1) -> int:
+    """How many batches :func:`_level_specs` makes (without making them)."""
     total = 0
     for n, pixels in levels:
         if n <= paths_per_batch:
             total += -(-pixels.shape[0] // (paths_per_batch // n))
         else:
             total += pixels.shape[0] * -(-n // paths_per_batch)
+    if tail_split > 1:
+        paths = 0
+        for npix, spp in _reversed_sizes(levels, paths_per_batch):
+            total += min(tail_split, npix) - 1
+            paths += npix * spp
+            if paths >= paths_per_batch:
+                break
     return total
+
+
+def _reversed_sizes(levels, paths_per_batch: int):
+    """``(pixels, spp)`` of :func:`_plain_specs`' batches, last first, lazily."""
+    for n, pixels in reversed(list(levels)):
+        size = pixels.shape[0]
+        if n <= paths_per_batch:
+            per = paths_per_batch // n
+            for a in reversed(range(0, size, per)):
+                yield min(per, size - a), n
+        else:
+            for _ in range(size):
+                for a in reversed(range(0, n, paths_per_batch)):
+                    yield 1, min(paths_per_batch, n - a)
 
 
 @dataclass(frozen=True, eq=False)
@@ -475,7 +536,8 @@ class Adaptive:
             levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
             caustic = caustic_stage(run)
             per = self.paths_per_batch
-            run.stage(_level_specs(levels, per), _count_level_specs(levels, per), run.streams.stage[1], sink(film))
+            run.stage(_level_specs(levels, per, TAIL_SPLIT), _count_level_specs(levels, per, TAIL_SPLIT),
+                      run.streams.stage[1], sink(film))
         except KeyboardInterrupt:
             run.interrupted = True
         return self._result(run, pilot_film, film, counts, caustic)

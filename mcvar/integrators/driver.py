@@ -78,14 +78,52 @@ def _pool_context():
     return None
 
 
+class _Claims:
+    """Which batches of a pool have been started, shared by the calling process
+    and the pool's processes (a lock and a ring of sequence numbers in shared memory).
+
+    ``concurrent.futures.ProcessPoolExecutor`` hands a process its next batch
+    before it finishes the current one (the call queue holds ``workers + 1``
+    items), and such a batch can no longer be cancelled: at the end of a
+    stage the caller, out of batches it could take, waited for the pool's
+    running batch *and* the one queued behind it. With claims, whoever starts
+    a batch first claims its number (:meth:`claim`); a pool process that finds
+    its batch claimed by the caller skips it, so the caller may take any batch
+    the pool has not started (docs/performance.md, 'Two workers: the end of a
+    stage').
+    """
+
+    #: sequence numbers kept: more than the batches ever in flight (:func:`_window`)
+    RING = 1 << 12
+
+    def __init__(self, ctx):
+        self._lock = ctx.Lock()
+        self._ring = ctx.RawArray("q", [-1] * self.RING)
+        self._next = 0
+
+    def number(self) -> int:
+        """A new batch's sequence number (the calling process only)."""
+        self._next += 1
+        return self._next - 1
+
+    def claim(self, seq: int) -> bool:
+        """True for the first process that claims batch ``seq``, False after that."""
+        slot = seq % self.RING
+        with self._lock:
+            if self._ring[slot] == seq:
+                return False
+            self._ring[slot] = seq
+            return True
+
+
 class WorkerPool(Executor):
     """A local process pool with a lifetime, for one render or many.
 
     ``render(..., workers=n)`` makes one of ``n - 1`` processes for the render
-    (the calling process is the n-th worker: it takes not-yet-started batches
-    from the end of the queue while the pool works from the front, so two
-    workers on a machine whose second core is busy cost little more than
-    one) and shuts it down at the end. Passed as ``executor``, a pool does all
+    (the calling process is the n-th worker: it takes the oldest batch no
+    pool process has received, else one a pool process holds but has not
+    started, while the pool works from the front, so two workers on a machine
+    whose second core is busy cost little more than one) and shuts it down at the end. Passed as ``executor``, a pool does all
     the work and the caller waits. To keep warm processes over several renders (a fresh process
     spends its first batch at about half speed touching new memory), make
     one and pass it::
@@ -107,6 +145,16 @@ class WorkerPool(Executor):
         self.workers = check_count(workers, "workers")
         self._executor: ProcessPoolExecutor | None = None
         self._shared: _Shared | None = None
+        #: set by :meth:`share_claims` (the render's own pool, whose caller takes batches too)
+        self.claims: _Claims | None = None
+
+    def share_claims(self) -> None:
+        """Let the calling process take batches this pool has queued but not
+        started (:class:`_Claims`); before the processes start."""
+        if self._executor is None and self.claims is None:
+            import multiprocessing
+
+            self.claims = _Claims(_pool_context() or multiprocessing.get_context())
 
     def bind(self, shared: "_Shared") -> bool:
         """Hand a render's :class:`_Shared` data to the processes once, when they start.
@@ -124,8 +172,9 @@ class WorkerPool(Executor):
 
     def submit(self, fn, /, *args, **kwargs):
         if self._executor is None:
-            init = {} if self._shared is None else dict(initializer=_WorkerSlot.install,
-                                                        initargs=(self._shared.payload(),))
+            init = {} if self._shared is None and self.claims is None else dict(
+                initializer=_WorkerSlot.install,
+                initargs=(None if self._shared is None else self._shared.payload(), self.claims))
             self._executor = ProcessPoolExecutor(max_workers=self.workers, mp_context=_pool_context(), **init)
         return self._executor.submit(fn, *args, **kwargs)
 
@@ -178,10 +227,14 @@ class _WorkerSlot:
     """
 
     shared: _Shared | None = None
+    #: the pool's :class:`_Claims` (None: batches are not claimed)
+    claims: _Claims | None = None
 
     @staticmethod
-    def install(payload: tuple) -> None:
-        _WorkerSlot.shared = _Shared(*payload)
+    def install(payload: tuple | None, claims: "_Claims | None" = None) -> None:
+        if payload is not None:
+            _WorkerSlot.shared = _Shared(*payload)
+        _WorkerSlot.claims = claims
 
     @staticmethod
     def get(token: str) -> _Shared:
@@ -229,6 +282,15 @@ def _run_batch(batch: _Batch):
     return batch.method.run_batch(job)
 
 
+def _run_claimed(batch: _Batch, seq: int):
+    """:func:`_run_batch` in a pool process, unless the caller claimed batch ``seq``
+    first (then None, at once: the caller runs it)."""
+    claims = _WorkerSlot.claims
+    if claims is not None and not claims.claim(seq):
+        return None
+    return _run_batch(batch)
+
+
 def _child(stream: np.random.Generator, i: int) -> np.random.SeedSequence:
     """What ``stream.spawn(i + 1)[i]`` would seed, made alone (spawning 2^28
     generators up front would cost minutes and gigabytes)."""
@@ -248,8 +310,10 @@ def _in_order(batches, executor, parent_works: bool):
 
     ``executor`` None: in this process. Otherwise a bounded window is
     submitted; with ``parent_works`` this process, while the oldest batch
-    is still running, cancels the newest batch no worker has started and
-    runs it itself. A batch's result depends only on its description, so
+    is still running, takes the oldest batch no worker has received
+    (cancelled), else, where the pool shares :class:`_Claims`, the newest one
+    a pool process holds but has not started (claimed first), and runs it
+    itself. A batch's result depends only on its description, so
     neither who ran it nor when changes the image.
     """
     if executor is None:
@@ -257,24 +321,37 @@ def _in_order(batches, executor, parent_works: bool):
             yield batch, _run_batch(batch)
         return
     window = _window(executor, parent_works)
-    pending = deque()            # [batch, future, (result,) if this process ran it]
+    claims = getattr(executor, "claims", None) if parent_works else None
+    pending = deque()            # [batch, future, (result,) if this process ran it, sequence number]
     source = iter(batches)
     try:
         while True:
-            while len(pending) < window:
+            # the window counts batches without a result here: those this process
+            # ran wait only for their turn (results in order), and must not keep
+            # the pool from getting new batches while the oldest is still running
+            # (at most 8 windows of results held, should a pool process stall)
+            while sum(e[2] is None for e in pending) < window and len(pending) < 8 * window:
                 batch = next(source, None)
                 if batch is None:
                     break
-                future = executor.submit(_run_batch, batch)
+                seq = None if claims is None else claims.number()
+                future = executor.submit(_run_batch, batch) if claims is None else \
+                    executor.submit(_run_claimed, batch, seq)
                 if not all(callable(getattr(future, a, None)) for a in ("result", "done", "cancel")):
                     raise TypeError(f"executor.submit must return a concurrent.futures.Future (result, done, "
                                     f"cancel); {type(executor).__name__}.submit returned {type(future).__name__}")
-                pending.append([batch, future, None])
+                pending.append([batch, future, None, seq])
             if not pending:
                 return
             head = pending[0]
             if head[2] is None and parent_works and not head[1].done():
-                stolen = next((e for e in reversed(pending) if e[2] is None and e[1].cancel()), None)
+                # the oldest batch no worker has received (so that the second stage's
+                # small last batches stay last for both processes), else the newest
+                # one queued in a pool process but not started (claimed first)
+                stolen = next((e for e in pending if e[2] is None and e[1].cancel()), None)
+                if stolen is None and claims is not None:
+                    stolen = next((e for e in reversed(pending) if e[2] is None and not e[1].done()
+                                   and claims.claim(e[3])), None)
                 if stolen is not None:
                     stolen[2] = (_run_batch(stolen[0]),)
                     continue
@@ -486,6 +563,7 @@ class _Render:
             if self._pool is None:
                 self._pool = WorkerPool(run.workers - 1)
                 self._pool.bind(self.shared)
+                self._pool.share_claims()
             return self._pool, True
         return None, False
 

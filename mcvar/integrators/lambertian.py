@@ -172,10 +172,10 @@ def trace_lambertian(tr: Transport, o, d, *, slots: int | None = None) -> None:
     fresh = 0                               # rows fresh.. are new camera paths
     limit = tr.limit
     while state.n:
-        t, prim = tracer.closest_soa(state.o, state.d)
+        t, prim = tracer.closest_soa(state.o, state.d, t_dtype=dt)    # float32 t: no float64 round trip
         m = state.n
         if tr.visible and fresh < m:
-            tr.camera_hits(_rows(state, fresh, m), t[fresh:], prim[fresh:])
+            tr.camera_hits(_rows(state, fresh, m), t[fresh:].astype(np.float64), prim[fresh:])
         t = t.astype(dt, copy=False)
         tr.rays += m
         alive = None
@@ -278,7 +278,7 @@ def _next_event(tr: Transport, lt: _Tables, state: PathState, cols, p, fn, sgn, 
     """NEE: ``beta (albedo / pi) Le cos_i w_light / p_light`` over unoccluded
     samples, with ``p_bsdf = cos_i / pi``."""
     idx = state.idx
-    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, cols.vertex(None, LIGHT, 2, idx, p.dtype), None)
+    w, dist, _, pdf_l, _ = tr.emitters.sample_li(p, cols.vertex(None, LIGHT, 2, idx, p.dtype), None, radiance=False)
     cos_i = dot(w, fn)
     cos_i *= sgn                            # local wi.y in the flipped frame
     ok = cos_i > 0.0
