@@ -1,6 +1,6 @@
 """MMLT vs path, bdpt and pssmlt at equal time on cornell-door (prints tables; not a test).
 
-Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_mmlt.py [--seconds 2] [--seeds 3] [--res 32] [--slit 20]
+Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_mmlt.py [--seconds 2] [--seeds 3] [--first-seed 0] [--res 32] [--slit 20]
 [--center 278] [--height 300] [--methods path,bdpt,pssmlt,mmlt] [--mmlt-options '{"chains": 4096}']
 [--variants '[{}, {"direct_depth": 2}]']``
 (the door's geometry as ``cornell_door_scene``'s parameters; ``--center 200 --height 120`` puts the slit
@@ -90,7 +90,7 @@ def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):
     spps = {label: calibrate(scene, m, res, depth, seconds, o) for label, m, o in rows}
     stats = {label: [] for label, _, _ in rows}
     extras = {}
-    for seed in range(seeds):
+    for seed in seeds:
         for label, m, o in rows:                         # interleaved
             r = _render(scene, m, spps[label], res, depth, 1000 + seed, o)
             stats[label].append((r.seconds, float(np.mean((r.image - ref) ** 2)) - noise))
@@ -112,7 +112,7 @@ def table(scene, name, res, depth, seconds, seeds, rows, ref, noise):
         def g(a):
             return "[" + " ".join(f"{v:.3g}" for v in np.asarray(a)) + "]"
 
-        print(f"  {label} (seed 0): b_d {g(e['b_depth'])} +- {g(e['b_stderr_depth'])}, chains "
+        print(f"  {label} (first seed): b_d {g(e['b_depth'])} +- {g(e['b_stderr_depth'])}, chains "
               f"{e['chains_depth'].astype(int)}, acceptance {float(e['acceptance_rate'][0]):.3f}, "
               f"tau {g(e['tau_depth'])} (0: chains shorter than {mmlt.MIN_TAU_STEPS} steps), ESS {g(e['ess_depth'])}")
     return out
@@ -122,6 +122,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds 1000 + first-seed ... (another realisation)")
     ap.add_argument("--res", type=int, default=32)
     ap.add_argument("--depth", type=int, default=mmlt.DEFAULT_MAX_DEPTH)
     ap.add_argument("--ref-spp", type=int, default=32768)
@@ -142,17 +143,18 @@ def main():
     ref, noise = reference(scene, name, args.res, args.depth, args.ref_spp, method=args.ref_method)
     print(f"== {name} {args.res}x{args.res}, max_depth {args.depth}, {args.seconds:g} s per render, "
           f"{args.seeds} seeds; reference mean {ref.mean():.4g}, its noise {noise:.3g} (subtracted)")
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
     rows = []
     for m in args.methods.split(","):
         if m == "mmlt" and args.variants is not None:
             rows += [(f"mmlt {json.dumps(v, separators=(',', ':'))}", m, v) for v in json.loads(args.variants)]
         else:
             rows.append((m, m, json.loads(args.mmlt_options) if m == "mmlt" else {}))
-    table(scene, name, args.res, args.depth, args.seconds, args.seeds, rows, ref, noise)
+    table(scene, name, args.res, args.depth, args.seconds, seeds, rows, ref, noise)
     if args.trade:
         rows = [("path", "path", {})] + [(f"mmlt chains={c} sigma={s}", "mmlt", dict(chains=c, sigma=s))
                                          for c in (4096, 16384, 65536) for s in (0.003, 0.01, 0.03)]
-        table(scene, name, args.res, args.depth, args.seconds, args.seeds, rows, ref, noise)
+        table(scene, name, args.res, args.depth, args.seconds, seeds, rows, ref, noise)
     print(f"load average after: {os.getloadavg()}")
 
 
