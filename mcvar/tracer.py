@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bvh as _bvh
+from . import convex as _convex
 from ._validation import as_array, check_bool, check_count, check_choice
 
 __all__ = ["Hit", "Tracer", "BVH_MIN_TRIANGLES", "ACCELERATIONS"]
@@ -33,7 +34,7 @@ __all__ = ["Hit", "Tracer", "BVH_MIN_TRIANGLES", "ACCELERATIONS"]
 #: 0.57 in a second run), the 4-wide BVH ahead at 482 (0.63 against 0.40) and 10x at 1,922.
 BVH_MIN_TRIANGLES = 400
 #: Intersection strategies of :class:`Tracer`.
-ACCELERATIONS = ("auto", "bvh", "groups")
+ACCELERATIONS = ("auto", "bvh", "groups", "shells")
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,8 +212,12 @@ class Tracer:
             del self._inv, self._inv_o, self._offset
             return
         groups = scene.prim_group[:n_tri]
-        self._blocks = [self._make_block(np.flatnonzero(groups == g), g > 0 and self.cull)
-                        for g in (np.unique(groups) if n_tri else [])]
+        self._shells, self._shell_list = [], []
+        shell_tris = self._find_shells(groups) if accel in ("auto", "shells") else np.zeros(n_tri, dtype=bool)
+        if self._shells:
+            self.accel = "shells"
+        self._blocks = [self._make_block(np.flatnonzero((groups == g) & ~shell_tris), g > 0 and self.cull)
+                        for g in (np.unique(groups[~shell_tris]) if n_tri else [])]
         # any-hit order: boxed groups first (they occlude most), then the rest, each boxed
         order = sorted(self._blocks, key=lambda b: b.box is None)
         self._shadow_all = self._stack_boxes([self._make_block(b.idx, True) for b in order])
@@ -222,6 +227,74 @@ class Tracer:
 
     # ------------------------------------------------------------------
     # Construction
+
+    def _find_shells(self, groups):
+        """Convex shells (:mod:`mcvar.convex`) among each group's edge-connected
+        triangles: ``self._shells``, the face tables, and which triangles they hold."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        tri = self.scene.triangles
+        n_tri = tri.shape[0]
+        scale = max(1.0, float(np.abs(tri).max()))
+        keys = np.round(tri / (1e-9 * scale)).astype(np.int64).reshape(-1, 3)
+        _, vid = np.unique(keys, axis=0, return_inverse=True)                    # vertex ids
+        vid = vid.reshape(n_tri, 3)
+        nv = int(vid.max()) + 1
+        edge = np.concatenate([np.minimum(vid[:, a], vid[:, b]) * nv + np.maximum(vid[:, a], vid[:, b])
+                               for a, b in ((0, 1), (1, 2), (2, 0))])             # (3T,) edge ids
+        owner = np.tile(np.arange(n_tri), 3)
+        order = np.argsort(edge, kind="stable")
+        same = edge[order][1:] == edge[order][:-1]
+        a, b = owner[order][:-1][same], owner[order][1:][same]
+        keep = groups[a] == groups[b]
+        graph = coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n_tri, n_tri))
+        _, comp = connected_components(graph, directed=False)
+        shells = []
+        prims, diagonal = [np.full((1, 2), -1, dtype=np.int64)], [np.zeros((1, 4))]
+        held = np.zeros(n_tri, dtype=bool)
+        for k in np.unique(comp):
+            idx = np.flatnonzero(comp == k)
+            shell = _convex.find_shell(tri, idx, first_code=sum(p.shape[0] for p in prims), dtype=self.dtype)
+            if shell is None:
+                continue
+            shells.append((shell, idx))
+            real = shell.code[:, 0] > 0
+            prims.append(shell.prims[real])
+            diagonal.append(shell.diagonal[real])
+            held[idx] = True
+        self._face_prims = np.concatenate(prims)
+        self._face_diag = np.ascontiguousarray(np.concatenate(diagonal).T)       # (4, K + 1), float64
+        # A shell that holds most of the other triangles (a room) mostly sees rays from
+        # inside, the others (solids) rays from outside: stacked apart, so that each
+        # stack's rays take one kernel (mcvar.convex.shell_hits; correct either way)
+        centres = tri.mean(axis=1)
+        self._shell_list = []
+        for shell, idx in shells:
+            other = np.ones(n_tri, dtype=bool)
+            other[idx] = False
+            pts = centres[other] if other.any() else self.scene.light_origin + 0.5 * (
+                self.scene.light_edge1 + self.scene.light_edge2)
+            inside = (np.concatenate([pts, np.ones((pts.shape[0], 1))], axis=1) @ shell.w_rows.T.astype(np.float64)
+                      >= 0).all(axis=1)
+            self._shell_list.append((shell, bool(pts.shape[0]) and inside.mean() > 0.5))
+        self._shells = self._stacks(self._shell_list)
+        self._shell_cache = {}
+        return held
+
+    @staticmethod
+    def _stacks(shells):
+        """``(shell, is_room)`` pairs as at most two :class:`mcvar.convex.ShellStack`."""
+        return [_convex.ShellStack.of([sh for sh, room in shells if room == kind])
+                for kind in (True, False) if any(room == kind for _, room in shells)]
+
+    def _face_prim(self, code, o, d, t):
+        """The triangle of each shell face hit (``code`` > 0), by the side of the face's diagonal."""
+        x = o + d * t                                                             # (3, m), float64
+        side = np.take(self._face_diag[3], code)
+        for i in range(3):
+            side += np.take(self._face_diag[i], code) * x[i]
+        pa, pb = np.take(self._face_prims[:, 0], code), np.take(self._face_prims[:, 1], code)
+        return np.where((side >= 0) | (pb < 0), pa, pb)
 
     def _make_block(self, idx, with_box):
         """Stacked maps of the triangles ``idx``: ``(3k, 4)`` homogeneous for
@@ -387,6 +460,22 @@ class Tracer:
             return blocks, None, None
         return (blocks, np.stack([b.box[0] for b in blocks]), np.stack([b.box[1] for b in blocks]))
 
+    def _shadow_shells(self, keys):
+        """The shells holding a triangle that may occlude a shadow ray of one of ``keys``."""
+        if not self._shells:
+            return ()
+        if keys is None:
+            return self._shells
+        present = np.zeros(self._cand.shape[0], dtype=bool)
+        present[keys] = True
+        cand = self._cand[present].any(axis=0)
+        chosen = tuple(cand[sh.prims[sh.prims >= 0]].any() for sh, _ in self._shell_list)
+        stacks = self._shell_cache.get(chosen)
+        if stacks is None:
+            stacks = self._stacks([pair for pair, c in zip(self._shell_list, chosen) if c])
+            self._shell_cache[chosen] = stacks
+        return stacks
+
     def _shadow_blocks(self, keys):
         if keys is None or self._cand.shape[1] == 0:
             return self._shadow_all
@@ -502,6 +591,8 @@ class Tracer:
         open_blocks = [b for b in self._blocks if b.box is None]
         boxed, lo, hi = self._boxed
         in_box = np.empty((len(boxed), n), dtype=bool) if boxed else None
+        shells = self._shells
+        code = np.zeros(n, dtype=np.uint8) if shells else None
         for s in range(0, n, self.chunk):
             sl = slice(s, min(n, s + self.chunk))
             oc, dc = o4[:, sl], d[:, sl]
@@ -512,6 +603,18 @@ class Tracer:
                 better = t < tb
                 np.copyto(tb, t, where=better)
                 np.copyto(pb, p, where=better)
+                if shells:
+                    code[sl][better] = 0
+        # the shells, in slices of SHELL_SLICE rays (a shell costs ~20 NumPy calls)
+        for s in range(0, n, _convex.SHELL_SLICE) if shells else ():
+            sl = slice(s, min(n, s + _convex.SHELL_SLICE))
+            tb, cb = t_out[sl], code[sl]
+            for shell in shells:
+                t, c = _convex.shell_hits(shell, o4[:, sl], d[:, sl], self.epsilon)
+                better = t < tb
+                np.copyto(tb, t, where=better)
+                np.copyto(cb, c, where=better)
+                np.copyto(p_out[sl], -1, where=better)
         # all boxes at once, against the closest hit so far (conservative), in
         # slices of 4 chunks: the slab test's temporaries are small and NumPy's
         # per-call overhead dominated at 2048 rays (measured: 65 536 rays
@@ -534,6 +637,13 @@ class Tracer:
                 hit = sel[better]
                 t_out[hit] = t[better]
                 p_out[hit] = p[better]
+                if shells:
+                    code[hit] = 0
+        if shells:
+            face = np.flatnonzero(code)
+            if face.size:
+                p_out[face] = self._face_prim(np.take(code, face), np.take(o, face, axis=1),
+                                              np.take(d, face, axis=1), np.take(t_out, face))
         if tmax is not None:                     # else a row without a hit kept tm = inf
             t_out[p_out < 0] = np.inf
         return t_out.astype(t_dtype, copy=False), p_out
@@ -544,10 +654,16 @@ class Tracer:
             keep = None if keys is None else np.take(self._shadow_keep, keys)
             return _bvh.occluded(self._bvh, o, d, tmax, self.epsilon, keep=keep)
         occ = np.zeros(n, dtype=bool)
-        blocks, lo, hi = self._shadow_blocks(keys)
-        if not blocks:
+        shells, (blocks, lo, hi) = self._shadow_shells(keys), self._shadow_blocks(keys)
+        if not blocks and not shells:
             return occ
         o4, d, tm = self._as_rays(o, d, tmax)
+        for s in range(0, n, _convex.SHELL_SLICE) if shells else ():
+            sl = slice(s, min(n, s + _convex.SHELL_SLICE))
+            for shell in shells:
+                occ[sl] |= _convex.shell_occluded(shell, o4[:, sl], d[:, sl], tm[sl], self.epsilon)
+        if not blocks:
+            return occ
         in_box = np.empty((len(blocks), n), dtype=bool)
         for s in range(0, n, self._box_slice):
             sl = slice(s, min(n, s + self._box_slice))
@@ -556,7 +672,7 @@ class Tracer:
         # occluded (any-hit), gathered once and cut into full chunks
         for i, blk in enumerate(blocks):
             mask = in_box[i]
-            if i:
+            if i or shells:
                 mask &= ~occ
             sel_all = np.flatnonzero(mask)
             for s in range(0, sel_all.size, self.chunk):
