@@ -35,6 +35,7 @@ __all__ = ["ConvexShell", "ShellStack", "find_shell", "shell_hits", "shell_occlu
 #: O(planes) per ray, so a finely tessellated convex object stays with the BVH.
 MAX_PLANES = 24
 _TINY = np.float32(1e-30)
+_INF = np.float32(np.inf)
 #: Rays per call of the shell kernels: a shell test is ~20 NumPy calls, whose
 #: fixed cost dominates at the triangle test's 2048 rays.
 SHELL_SLICE = 2048
@@ -286,7 +287,7 @@ def _leave(stack: ShellStack, w, s, eps, t0=None):
     ok = code > 0
     ok &= rmax > 0
     ok &= t > eps
-    return np.where(ok, t, np.inf).astype(t.dtype, copy=False), code * ok
+    return np.where(ok, t, _INF if t.dtype == np.float32 else np.inf), code * ok
 
 
 def _enter(stack: ShellStack, w, s, eps):
@@ -296,13 +297,13 @@ def _enter(stack: ShellStack, w, s, eps):
     # coming in: no t inside, so the entry point below is outside)
     t_lo = w / np.minimum(s, -_TINY)
     tn = t_lo.max(axis=1)
-    code = _argmax_code(t_lo, tn, stack.code)
     w -= tn[:, None, :] * s                          # distances from the entry point
     inside = w.min(axis=1) >= -stack.tol            # the line meets the polyhedron
-    hit = inside & (code > 0)
-    hit &= tn > eps
-    t = np.where(hit, tn, np.inf).astype(tn.dtype, copy=False)
-    code *= hit
+    ahead = inside & (tn > eps)
+    code = _argmax_code(t_lo, tn, stack.code)
+    code *= ahead
+    hit = code > 0
+    t = np.where(hit, tn, _INF if tn.dtype == np.float32 else np.inf)
     rest = inside & ~hit                            # in through a hole, or at the origin
     if rest.any():
         t2, c2 = _leave(stack, w, s, eps, np.maximum(tn, 0))

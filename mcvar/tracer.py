@@ -218,12 +218,23 @@ class Tracer:
             self.accel = "shells"
         self._blocks = [self._make_block(np.flatnonzero((groups == g) & ~shell_tris), g > 0 and self.cull)
                         for g in (np.unique(groups[~shell_tris]) if n_tri else [])]
-        # any-hit order: boxed groups first (they occlude most), then the rest, each boxed
-        order = sorted(self._blocks, key=lambda b: b.box is None)
+        # any-hit order: boxed groups first (they occlude most), then the rest, each boxed;
+        # shadow rays test the shells' triangles too (with the groups' boxes, most
+        # shadow rays skip the Cornell blocks at once: measured faster than the shells)
+        whole = [self._make_block(np.flatnonzero(groups == g), g > 0 and self.cull)
+                 for g in (np.unique(groups) if n_tri else [])]
+        order = sorted(whole, key=lambda b: b.box is None)
         self._shadow_all = self._stack_boxes([self._make_block(b.idx, True) for b in order])
         self._boxed = self._stack_boxes([b for b in self._blocks if b.box is not None])
         self._shadow_cache = {}
         self._build_shadow_table()
+        if self._shells:
+            # closest hits: the leftover triangles that pair into parallelograms
+            # (the Cornell light) by one parallelogram test each, the others as blocks
+            rest = np.flatnonzero(~shell_tris)
+            self._quads, single = self._pair_quads(rest)
+            self._closest_blocks = [self._make_block(np.intersect1d(b.idx, single), False)
+                                    for b in self._blocks if np.intersect1d(b.idx, single).size]
 
     # ------------------------------------------------------------------
     # Construction
@@ -262,8 +273,12 @@ class Tracer:
             prims.append(shell.prims[real])
             diagonal.append(shell.diagonal[real])
             held[idx] = True
-        self._face_prims = np.concatenate(prims)
-        self._face_diag = np.ascontiguousarray(np.concatenate(diagonal).T)       # (4, K + 1), float64
+        # per face code: the diagonal's row and the triangles on its two sides
+        # (one-triangle faces: a zero row, the triangle on both sides; code 0: -1)
+        face_prims = np.concatenate(prims)
+        face_prims[:, 1] = np.where(face_prims[:, 1] < 0, face_prims[:, 0], face_prims[:, 1])
+        self._face_table = np.ascontiguousarray(np.concatenate(diagonal).T, dtype=self.dtype)   # (4, K + 1)
+        self._face_prims = np.ascontiguousarray(face_prims.T)                                   # (2, K + 1)
         # A shell that holds most of the other triangles (a room) mostly sees rays from
         # inside, the others (solids) rays from outside: stacked apart, so that each
         # stack's rays take one kernel (mcvar.convex.shell_hits; correct either way)
@@ -287,14 +302,94 @@ class Tracer:
         return [_convex.ShellStack.of([sh for sh, room in shells if room == kind])
                 for kind in (True, False) if any(room == kind for _, room in shells)]
 
-    def _face_prim(self, code, o, d, t):
-        """The triangle of each shell face hit (``code`` > 0), by the side of the face's diagonal."""
-        x = o + d * t                                                             # (3, m), float64
-        side = np.take(self._face_diag[3], code)
-        for i in range(3):
-            side += np.take(self._face_diag[i], code) * x[i]
-        pa, pb = np.take(self._face_prims[:, 0], code), np.take(self._face_prims[:, 1], code)
-        return np.where((side >= 0) | (pb < 0), pa, pb)
+    def _pair_quads(self, idx):
+        """Parallelograms among the triangles ``idx`` (pairs sharing a diagonal):
+        ``(quads, unpaired)``, ``quads`` None or ``(mat_o (3Q, 4), mat_d (3Q, 3), prims (2, Q))``.
+
+        A pair ``(c, a, b)``, ``(a, b, e)`` with ``c + e = a + b`` is the
+        parallelogram ``c + u (a - c) + v (b - c)``, ``u, v`` in [0, 1]: one affine
+        map to ``(u, v, h)`` as for a triangle (:meth:`_make_block`), the first
+        triangle where ``u + v <= 1``."""
+        tri = self.scene.triangles
+        scale = max(1.0, float(np.abs(tri).max()))
+        used, rows_o, rows_d, prims = set(), [], [], []
+        for x in idx:
+            if x in used:
+                continue
+            for y in idx:
+                if y == x or y in used:
+                    continue
+                tx, ty = tri[x], tri[y]
+                shared = [(i, j) for i in range(3) for j in range(3)
+                          if np.abs(tx[i] - ty[j]).max() <= 1e-9 * scale]
+                if len(shared) != 2:
+                    continue
+                c = tx[3 - shared[0][0] - shared[1][0]]
+                e = ty[3 - shared[0][1] - shared[1][1]]
+                a, b = tx[shared[0][0]], tx[shared[1][0]]
+                if np.abs(c + e - a - b).max() > 1e-9 * scale:
+                    continue
+                e1, e2 = a - c, b - c
+                nrm = np.cross(e1, e2)
+                inv = np.linalg.inv(np.stack([e1, e2, nrm], axis=1))
+                off = -inv @ c
+                inv_o, off_o = inv.copy(), off.copy()
+                inv_o[2] *= -1.0
+                off_o[2] *= -1.0
+                rows_o.append(np.concatenate([inv_o, off_o[:, None]], axis=1))
+                rows_d.append(inv)
+                prims.append((x, y))
+                used.update((x, y))
+                break
+        unpaired = np.array([i for i in idx if i not in used], dtype=np.int64)
+        if not prims:
+            return None, unpaired
+        q = len(prims)
+        mat_o = np.stack(rows_o).transpose(1, 0, 2).reshape(3 * q, 4)
+        mat_d = np.stack(rows_d).transpose(1, 0, 2).reshape(3 * q, 3)
+        return (np.ascontiguousarray(mat_o, self.dtype), np.ascontiguousarray(mat_d, self.dtype),
+                np.ascontiguousarray(np.array(prims, dtype=np.int64).T)), unpaired
+
+    def _closest_quads(self, o4, d):
+        """Nearest parallelogram hit of each ray: ``(t, prim)``, ``t`` inf where none."""
+        mat_o, mat_d, prims = self._quads
+        q = prims.shape[1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ot = _one_thread_product(mat_o, o4)
+            dt = _one_thread_product(mat_d, d)
+            t = ot[2 * q:]
+            t /= dt[2 * q:]
+            u = dt[:q]
+            u *= t
+            u += ot[:q]
+            v = dt[q:2 * q]
+            v *= t
+            v += ot[q:2 * q]
+            ok = np.minimum(u, v) >= 0
+            ok &= np.maximum(u, v) <= 1
+            ok &= t > self.epsilon
+            np.copyto(t, np.inf, where=~ok)
+            u += v
+            second = u > 1
+        if q == 1:
+            return t[0], np.where(second[0], prims[1, 0], prims[0, 0])
+        best = t.min(axis=0)
+        j = np.argmin(t, axis=0)
+        s = np.take_along_axis(second, j[None], axis=0)[0]
+        return best, np.where(s, np.take(prims[1], j), np.take(prims[0], j))
+
+    def _face_prim(self, code, o4, d, t):
+        """The triangle of each shell face hit (``code`` > 0; -1 for 0), by the side of the face's diagonal."""
+        code = code.astype(np.intp)
+        tab = self._face_table                                                   # (6, K + 1)
+        with np.errstate(invalid="ignore"):              # misses: inf x 0
+            side = np.take(tab[3], code)
+            for i in range(3):
+                x = d[i] * t
+                x += o4[i]
+                x *= np.take(tab[i], code)
+                side += x
+        return np.where(side >= 0, np.take(self._face_prims[0], code), np.take(self._face_prims[1], code))
 
     def _make_block(self, idx, with_box):
         """Stacked maps of the triangles ``idx``: ``(3k, 4)`` homogeneous for
@@ -460,22 +555,6 @@ class Tracer:
             return blocks, None, None
         return (blocks, np.stack([b.box[0] for b in blocks]), np.stack([b.box[1] for b in blocks]))
 
-    def _shadow_shells(self, keys):
-        """The shells holding a triangle that may occlude a shadow ray of one of ``keys``."""
-        if not self._shells:
-            return ()
-        if keys is None:
-            return self._shells
-        present = np.zeros(self._cand.shape[0], dtype=bool)
-        present[keys] = True
-        cand = self._cand[present].any(axis=0)
-        chosen = tuple(cand[sh.prims[sh.prims >= 0]].any() for sh, _ in self._shell_list)
-        stacks = self._shell_cache.get(chosen)
-        if stacks is None:
-            stacks = self._stacks([pair for pair, c in zip(self._shell_list, chosen) if c])
-            self._shell_cache[chosen] = stacks
-        return stacks
-
     def _shadow_blocks(self, keys):
         if keys is None or self._cand.shape[1] == 0:
             return self._shadow_all
@@ -585,6 +664,8 @@ class Tracer:
             tm = np.full(n, np.inf) if tmax is None else tmax
             t, prim = _bvh.closest(self._bvh, o, d, tm, self.epsilon)
             return t.astype(t_dtype, copy=False), prim
+        if self._shells and not self._boxed[0]:
+            return self._closest_shells(o, d, tmax, t_dtype)
         o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.full(n, np.inf, dtype=self.dtype)
         p_out = np.full(n, -1, dtype=np.int64)
@@ -648,22 +729,55 @@ class Tracer:
             t_out[p_out < 0] = np.inf
         return t_out.astype(t_dtype, copy=False), p_out
 
+    def _closest_shells(self, o, d, tmax, t_dtype):
+        """:meth:`_closest_triangles` for scenes of convex shells and unboxed
+        triangle groups (the Cornell box: its room and blocks, and the light),
+        everything per slice of ``SHELL_SLICE`` rays (the temporaries stay in cache)."""
+        n = o.shape[1]
+        o4, d, tm = self._as_rays(o, d, tmax)
+        t_out = np.empty(n, dtype=self.dtype)
+        p_out = np.empty(n, dtype=np.int64)
+        eps = self.epsilon
+        step = _convex.SHELL_SLICE
+        for s in range(0, n, step):
+            sl = slice(s, min(n, s + step))
+            oc, dc = o4[:, sl], d[:, sl]
+            t, c = _convex.shell_hits(self._shells[0], oc, dc, eps)
+            for stack in self._shells[1:]:
+                t2, c2 = _convex.shell_hits(stack, oc, dc, eps)
+                better = t2 < t
+                np.copyto(t, t2, where=better)
+                np.copyto(c, c2, where=better)
+            if tmax is not None:
+                beyond = t >= tm[sl]
+                np.copyto(t, tm[sl], where=beyond)
+                np.copyto(c, 0, where=beyond)
+            prim = self._face_prim(c, oc, dc, t)
+            if self._quads is not None:
+                tq, pq = self._closest_quads(oc, dc)
+                better = tq < t
+                np.copyto(t, tq, where=better)
+                np.copyto(prim, pq, where=better)
+            for blk in self._closest_blocks:
+                tb, pb = self._closest_block(blk, oc, dc)
+                better = tb < t
+                np.copyto(t, tb, where=better)
+                np.copyto(prim, pb, where=better)
+            t_out[sl], p_out[sl] = t, prim
+        if tmax is not None:
+            t_out[p_out < 0] = np.inf
+        return t_out.astype(t_dtype, copy=False), p_out
+
     def _any_triangles(self, o, d, tmax, keys):
         n = o.shape[1]
         if self.accel == "bvh":
             keep = None if keys is None else np.take(self._shadow_keep, keys)
             return _bvh.occluded(self._bvh, o, d, tmax, self.epsilon, keep=keep)
         occ = np.zeros(n, dtype=bool)
-        shells, (blocks, lo, hi) = self._shadow_shells(keys), self._shadow_blocks(keys)
-        if not blocks and not shells:
-            return occ
-        o4, d, tm = self._as_rays(o, d, tmax)
-        for s in range(0, n, _convex.SHELL_SLICE) if shells else ():
-            sl = slice(s, min(n, s + _convex.SHELL_SLICE))
-            for shell in shells:
-                occ[sl] |= _convex.shell_occluded(shell, o4[:, sl], d[:, sl], tm[sl], self.epsilon)
+        blocks, lo, hi = self._shadow_blocks(keys)
         if not blocks:
             return occ
+        o4, d, tm = self._as_rays(o, d, tmax)
         in_box = np.empty((len(blocks), n), dtype=bool)
         for s in range(0, n, self._box_slice):
             sl = slice(s, min(n, s + self._box_slice))
@@ -672,7 +786,7 @@ class Tracer:
         # occluded (any-hit), gathered once and cut into full chunks
         for i, blk in enumerate(blocks):
             mask = in_box[i]
-            if i or shells:
+            if i:
                 mask &= ~occ
             sel_all = np.flatnonzero(mask)
             for s in range(0, sel_all.size, self.chunk):
