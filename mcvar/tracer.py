@@ -116,14 +116,20 @@ class Tracer:
     cull : bool
         Test a triangle group (``scene.prim_group > 0``) only for rays that
         hit its bounding box (default True).
-    accel : {'auto', 'bvh', 'groups'}
-        ``'groups'``: brute force over triangle groups (the Cornell box's
-        path); ``'bvh'``: a binned-SAH bounding volume hierarchy, collapsed
+    accel : {'auto', 'bvh', 'groups', 'shells'}
+        ``'groups'``: brute force over triangle groups; ``'shells'``: the
+        same, except that every edge-connected set of a group's triangles that
+        bounds a convex polyhedron (:func:`mcvar.convex.find_shell`: the
+        Cornell room and its blocks) is intersected by its planes' half-spaces,
+        and leftover triangle pairs that form a parallelogram (the Cornell
+        light) by one parallelogram test (closest hits only; shadow rays use
+        the groups); ``accel`` then reads ``'shells'`` if any was found, else
+        ``'groups'``; ``'bvh'``: a binned-SAH bounding volume hierarchy, collapsed
         to 4-wide nodes and traversed as a wavefront of (ray, node) pairs
         (:mod:`mcvar.bvh`), whose cost grows
         with the logarithm of the triangle count and whose memory grows
         linearly; ``'auto'`` (default): the BVH above
-        :data:`BVH_MIN_TRIANGLES` triangles.
+        :data:`BVH_MIN_TRIANGLES` triangles, ``'shells'`` below.
 
     Notes
     -----
@@ -213,7 +219,8 @@ class Tracer:
             return
         groups = scene.prim_group[:n_tri]
         self._shells, self._shell_list = [], []
-        shell_tris = self._find_shells(groups) if accel in ("auto", "shells") else np.zeros(n_tri, dtype=bool)
+        shell_tris = (self._find_shells(groups) if n_tri and accel in ("auto", "shells")
+                      else np.zeros(n_tri, dtype=bool))
         if self._shells:
             self.accel = "shells"
         self._blocks = [self._make_block(np.flatnonzero((groups == g) & ~shell_tris), g > 0 and self.cull)
@@ -293,7 +300,6 @@ class Tracer:
                       >= 0).all(axis=1)
             self._shell_list.append((shell, bool(pts.shape[0]) and inside.mean() > 0.5))
         self._shells = self._stacks(self._shell_list)
-        self._shell_cache = {}
         return held
 
     @staticmethod

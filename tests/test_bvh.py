@@ -200,10 +200,12 @@ def test_auto_chooses_the_bvh_above_the_threshold_only():
     seen = set()
     for k in range(1, 9):                                            # 32 to 1,922 triangles
         scene = subdivide(coarse, k)
-        want = "bvh" if scene.n_triangles > BVH_MIN_TRIANGLES else "groups"
+        # the coarse box's room and blocks are convex shells (mcvar.convex); subdivided
+        # faces hold more than two triangles, so brute force over groups below the BVH
+        want = "bvh" if scene.n_triangles > BVH_MIN_TRIANGLES else "shells" if k == 1 else "groups"
         assert Tracer(scene).accel == want, (scene.n_triangles, BVH_MIN_TRIANGLES)
         seen.add(want)
-    assert seen == {"bvh", "groups"}
+    assert seen == {"bvh", "groups", "shells"}
     assert Tracer(coarse, accel="bvh").accel == "bvh"
     with pytest.raises(ValueError, match="accel"):
         Tracer(coarse, accel="octree")
@@ -237,7 +239,7 @@ def test_bvh_renders_brute_force_image_and_subdivision_the_coarse_one(monkeypatc
     for name, scene, threshold, seed in (("coarse", coarse, 10 ** 9, 0), ("groups", fine, 10 ** 9, 1),
                                          ("bvh", fine, 0, 2)):
         monkeypatch.setattr(T, "BVH_MIN_TRIANGLES", threshold)
-        assert Tracer(scene).accel == ("bvh" if threshold == 0 else "groups")
+        assert Tracer(scene).accel == ("bvh" if threshold == 0 else "shells" if name == "coarse" else "groups")
         runs[name] = render(scene, rng=np.random.default_rng(SEED + seed), **kw)
         assert np.all(np.isfinite(runs[name].image))
     n = 16 * 16
