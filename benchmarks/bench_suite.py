@@ -564,9 +564,9 @@ def run_triangles(args, libllvm, mitsuba_ok) -> list[dict]:
     res, spp = args.triangle_res, args.triangle_spp
     acc: dict = {}
     print(f"\ntriangle-count series: subdivided Cornell box, k = {ks}, {res}x{res}, {spp} spp, "
-          f"{args.triangle_rounds} rounds; load average {_load()}", flush=True)
+          f"{args.triangle_rounds} rounds x {args.triangle_seeds} seeds; load average {_load()}", flush=True)
     for rnd in range(args.triangle_rounds):
-        seeds = str(2000 + rnd)
+        seeds = ",".join(str(2000 + rnd * args.triangle_seeds + s) for s in range(args.triangle_seeds))
         for k in ks:
             engines = ["mcvar", "mitsuba"] if mitsuba_ok else ["mcvar"]
             for engine in engines:
@@ -663,6 +663,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-triangles", action="store_true", help="skip the triangle-count series")
     ap.add_argument("--no-suite", action="store_true", help="only the triangle-count series")
     ap.add_argument("--triangle-rounds", type=int, default=3)
+    ap.add_argument("--triangle-seeds", type=int, default=3,
+                    help="renders per engine, level and round in the triangle series (medians over all; "
+                         "one render per round moved the 100k point by a third between runs)")
     ap.add_argument("--libllvm", default=None, help="a libLLVM >= 16 for Mitsuba's LLVM variant")
     ap.add_argument("--cases", default=None,
                     help="the suite's cases to run, comma-separated: a scene (cornell-spheres: its case; "
@@ -678,7 +681,7 @@ def main(argv=None) -> int:
         args.rounds, args.seeds, args.triangle_rounds = 1, 3, 1
         args.ref_paths = min(args.ref_paths, 2 ** 24)
         args.triangle_ks = (1, 2, 4, 8)
-    for key in ("rounds", "seeds", "ref_paths", "triangle_rounds"):
+    for key in ("rounds", "seeds", "ref_paths", "triangle_rounds", "triangle_seeds"):
         if getattr(args, key) < 1:
             raise SystemExit(f"--{key.replace('_', '-')} must be >= 1; got {getattr(args, key)}")
     if args.seeds * args.rounds < 2:
