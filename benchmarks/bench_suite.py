@@ -51,7 +51,8 @@ triangle cut into ``k^2`` pieces (:func:`mcvar.tessellate.subdivide`, the same
 image) from 32 to 100,922 triangles (issue 27's 100k point), mcvar's default and plain (paths per
 second of the render, without the tracer's build, and of the whole call) and
 Mitsuba (``multijitter``, its load not timed) at 64 x 64 and 32 spp, relative
-to the box; saved as a log-log plot (``docs/performance-suite-triangles.png``).
+to the box, ``--triangle-rounds`` rounds of ``--triangle-seeds`` renders per point
+(medians over all); saved as a log-log plot (``docs/performance-suite-triangles.png``).
 
 Outputs: ``out/bench-suite/suite.csv``, ``suite.md`` (the markdown table),
 ``triangles.csv``, and the plot (``--quick`` puts it in ``out/bench-suite/``). Mitsuba is optional: without it, or without
@@ -559,6 +560,12 @@ def report_suite(rows: list[dict], mitsuba_ok: bool, why: str | None) -> tuple[s
 # ---------------------------------------------------------------------------
 # the triangle-count series
 
+def triangle_seeds(rnd: int, count: int) -> str:
+    """The seeds of round ``rnd`` of the triangle series, ``count`` of them (comma-separated):
+    fresh in every round, so that the medians are over independent renders."""
+    return ",".join(str(2000 + rnd * count + s) for s in range(count))
+
+
 def run_triangles(args, libllvm, mitsuba_ok) -> list[dict]:
     ks = args.triangle_ks
     res, spp = args.triangle_res, args.triangle_spp
@@ -566,7 +573,7 @@ def run_triangles(args, libllvm, mitsuba_ok) -> list[dict]:
     print(f"\ntriangle-count series: subdivided Cornell box, k = {ks}, {res}x{res}, {spp} spp, "
           f"{args.triangle_rounds} rounds x {args.triangle_seeds} seeds; load average {_load()}", flush=True)
     for rnd in range(args.triangle_rounds):
-        seeds = ",".join(str(2000 + rnd * args.triangle_seeds + s) for s in range(args.triangle_seeds))
+        seeds = triangle_seeds(rnd, args.triangle_seeds)
         for k in ks:
             engines = ["mcvar", "mitsuba"] if mitsuba_ok else ["mcvar"]
             for engine in engines:
