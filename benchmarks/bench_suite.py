@@ -51,7 +51,8 @@ triangle cut into ``k^2`` pieces (:func:`mcvar.tessellate.subdivide`, the same
 image) from 32 to 100,922 triangles (issue 27's 100k point), mcvar's default and plain (paths per
 second of the render, without the tracer's build, and of the whole call) and
 Mitsuba (``multijitter``, its load not timed) at 64 x 64 and 32 spp, relative
-to the box; saved as a log-log plot (``docs/performance-suite-triangles.png``).
+to the box, ``--triangle-rounds`` rounds of ``--triangle-seeds`` renders per point
+(medians over all); saved as a log-log plot (``docs/performance-suite-triangles.png``).
 
 Outputs: ``out/bench-suite/suite.csv``, ``suite.md`` (the markdown table),
 ``triangles.csv``, and the plot (``--quick`` puts it in ``out/bench-suite/``). Mitsuba is optional: without it, or without
@@ -559,14 +560,20 @@ def report_suite(rows: list[dict], mitsuba_ok: bool, why: str | None) -> tuple[s
 # ---------------------------------------------------------------------------
 # the triangle-count series
 
+def triangle_seeds(rnd: int, count: int) -> str:
+    """The seeds of round ``rnd`` of the triangle series, ``count`` of them (comma-separated):
+    fresh in every round, so that the medians are over independent renders."""
+    return ",".join(str(2000 + rnd * count + s) for s in range(count))
+
+
 def run_triangles(args, libllvm, mitsuba_ok) -> list[dict]:
     ks = args.triangle_ks
     res, spp = args.triangle_res, args.triangle_spp
     acc: dict = {}
     print(f"\ntriangle-count series: subdivided Cornell box, k = {ks}, {res}x{res}, {spp} spp, "
-          f"{args.triangle_rounds} rounds; load average {_load()}", flush=True)
+          f"{args.triangle_rounds} rounds x {args.triangle_seeds} seeds; load average {_load()}", flush=True)
     for rnd in range(args.triangle_rounds):
-        seeds = str(2000 + rnd)
+        seeds = triangle_seeds(rnd, args.triangle_seeds)
         for k in ks:
             engines = ["mcvar", "mitsuba"] if mitsuba_ok else ["mcvar"]
             for engine in engines:
@@ -663,6 +670,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-triangles", action="store_true", help="skip the triangle-count series")
     ap.add_argument("--no-suite", action="store_true", help="only the triangle-count series")
     ap.add_argument("--triangle-rounds", type=int, default=3)
+    ap.add_argument("--triangle-seeds", type=int, default=3,
+                    help="renders per engine, level and round in the triangle series (medians over all; "
+                         "one render per round moved the 100k point by a third between runs)")
     ap.add_argument("--libllvm", default=None, help="a libLLVM >= 16 for Mitsuba's LLVM variant")
     ap.add_argument("--cases", default=None,
                     help="the suite's cases to run, comma-separated: a scene (cornell-spheres: its case; "
@@ -678,7 +688,7 @@ def main(argv=None) -> int:
         args.rounds, args.seeds, args.triangle_rounds = 1, 3, 1
         args.ref_paths = min(args.ref_paths, 2 ** 24)
         args.triangle_ks = (1, 2, 4, 8)
-    for key in ("rounds", "seeds", "ref_paths", "triangle_rounds"):
+    for key in ("rounds", "seeds", "ref_paths", "triangle_rounds", "triangle_seeds"):
         if getattr(args, key) < 1:
             raise SystemExit(f"--{key.replace('_', '-')} must be >= 1; got {getattr(args, key)}")
     if args.seeds * args.rounds < 2:

@@ -171,3 +171,11 @@ def test_cases_are_chosen_by_scene_or_scene_and_size(suite):
     for bad in ("cornel", "cornell-32", ","):
         with pytest.raises(SystemExit, match="--cases"):
             suite.select_cases(bad)
+
+
+def test_triangle_series_seeds_are_fresh_in_every_round(suite):
+    seen = [int(x) for rnd in range(4) for x in suite.triangle_seeds(rnd, 3).split(",")]
+    assert len(seen) == 12 and len(set(seen)) == 12
+    assert suite.triangle_seeds(0, 1) == "2000"
+    with pytest.raises(SystemExit, match="--triangle-seeds"):
+        suite.main(["--triangle-seeds", "0", "--no-mitsuba"])
