@@ -1,4 +1,4 @@
-"""Convex shells: a closed convex polyhedron's triangles hit by half-spaces (layer 4).
+"""Convex shells: a closed convex polyhedron's triangles hit by half-spaces (layer 3, beside :mod:`mcvar.bvh`).
 
 A room or a box whose triangles bound a convex polyhedron (open faces such as
 the Cornell room's front or a block's bottom allowed) is intersected without

@@ -16,7 +16,7 @@ LAYERS = {
     "samplers": 1, "geometry": 1, "metrics": 1, "images": 1,
     "discrepancy": 2, "warps": 2, "optics": 2, "piecewise": 2,
     "bsdf": 3, "envmap": 3, "estimators": 3, "testing": 3,
-    "bvh": 3,
+    "bvh": 3, "convex": 3,
     "scenefile": 3.5,
     "examples": 4, "lab_renderer": 4,
     "scene": 4, "tracer": 4, "tessellate": 4,
