@@ -13,7 +13,7 @@ plane that attains them; a face of two triangles (a quad) is resolved by the
 side of its diagonal. Shells of one kind are stacked (:class:`ShellStack`) so
 that one product serves all of them. On the Cornell box (the room, 7 planes
 with its open front; the two blocks, 6 each with their open bottoms) this
-made `render_adaptive` 9-17 % faster than the triangle groups with their boxes
+made `render_adaptive` 9-17 % faster than the triangle groups with their boxes in interleaved renders (1-8 % per path in the suite)
 (docs/performance.md, 'Convex shells'); shadow rays keep the groups' boxes,
 which most of them miss.
 
