@@ -90,6 +90,23 @@ def _one_thread_product(a, b):
     return out
 
 
+def _plane_coordinates(mat_o, mat_d, o4, d, k):
+    """``(t, b1, b2)``, each (k, m): the distance to each of ``k`` planes and the
+    hit's two coordinates in its frame, from stacked affine maps (rows: b1 of
+    all, b2 of all, -h of all; :meth:`Tracer._make_block`)."""
+    ot = _one_thread_product(mat_o, o4)
+    dt = _one_thread_product(mat_d, d)
+    t = ot[2 * k:]
+    t /= dt[2 * k:]
+    b1 = dt[:k]
+    b1 *= t
+    b1 += ot[:k]
+    b2 = dt[k:2 * k]
+    b2 *= t
+    b2 += ot[k:2 * k]
+    return t, b1, b2
+
+
 class _Block:
     """One triangle group's stacked maps (rows: b1 of all, b2 of all, h of all)."""
 
@@ -361,16 +378,7 @@ class Tracer:
         mat_o, mat_d, prims = self._quads
         q = prims.shape[1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ot = _one_thread_product(mat_o, o4)
-            dt = _one_thread_product(mat_d, d)
-            t = ot[2 * q:]
-            t /= dt[2 * q:]
-            u = dt[:q]
-            u *= t
-            u += ot[:q]
-            v = dt[q:2 * q]
-            v *= t
-            v += ot[q:2 * q]
+            t, u, v = _plane_coordinates(mat_o, mat_d, o4, d, q)
             ok = np.minimum(u, v) >= 0
             ok &= np.maximum(u, v) <= 1
             ok &= t > self.epsilon
@@ -608,17 +616,7 @@ class Tracer:
             return self._block_t_inner(blk, o4, d)
 
     def _block_t_inner(self, blk, o4, d):
-        k = blk.k
-        ot = _one_thread_product(blk.mat_o, o4)
-        dt = _one_thread_product(blk.mat_d, d)
-        t = ot[2 * k:]
-        t /= dt[2 * k:]
-        b1 = dt[:k]
-        b1 *= t
-        b1 += ot[:k]
-        b2 = dt[k:2 * k]
-        b2 *= t
-        b2 += ot[k:2 * k]
+        t, b1, b2 = _plane_coordinates(blk.mat_o, blk.mat_d, o4, d, blk.k)
         ok = np.minimum(b1, b2) >= 0
         b1 += b2
         ok &= b1 <= 1
