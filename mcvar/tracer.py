@@ -235,7 +235,7 @@ class Tracer:
             del self._inv, self._inv_o, self._offset
             return
         groups = scene.prim_group[:n_tri]
-        self._shells, self._shell_list = [], []
+        self._shells = []
         shell_tris = (self._find_shells(groups) if n_tri and accel in ("auto", "shells")
                       else np.zeros(n_tri, dtype=bool))
         if self._shells:
@@ -307,7 +307,7 @@ class Tracer:
         # inside, the others (solids) rays from outside: stacked apart, so that each
         # stack's rays take one kernel (mcvar.convex.shell_hits; correct either way)
         centres = tri.mean(axis=1)
-        self._shell_list = []
+        kinds = []
         for shell, idx in shells:
             other = np.ones(n_tri, dtype=bool)
             other[idx] = False
@@ -315,8 +315,8 @@ class Tracer:
                 self.scene.light_edge1 + self.scene.light_edge2)
             inside = (np.concatenate([pts, np.ones((pts.shape[0], 1))], axis=1) @ shell.w_rows.T.astype(np.float64)
                       >= 0).all(axis=1)
-            self._shell_list.append((shell, bool(pts.shape[0]) and inside.mean() > 0.5))
-        self._shells = self._stacks(self._shell_list)
+            kinds.append((shell, bool(pts.shape[0]) and inside.mean() > 0.5))
+        self._shells = self._stacks(kinds)
         return held
 
     @staticmethod
@@ -335,11 +335,18 @@ class Tracer:
         triangle where ``u + v <= 1``."""
         tri = self.scene.triangles
         scale = max(1.0, float(np.abs(tri).max()))
+        keys = np.round(tri / (1e-9 * scale)).astype(np.int64)
+        by_edge = {}                                   # edge (two vertex keys) -> triangles
+        for x in idx:
+            for a, b in ((0, 1), (1, 2), (2, 0)):
+                by_edge.setdefault(frozenset((tuple(keys[x, a]), tuple(keys[x, b]))), []).append(x)
         used, rows_o, rows_d, prims = set(), [], [], []
         for x in idx:
             if x in used:
                 continue
-            for y in idx:
+            near = {y for a, b in ((0, 1), (1, 2), (2, 0))
+                    for y in by_edge[frozenset((tuple(keys[x, a]), tuple(keys[x, b])))]}
+            for y in sorted(near):
                 if y == x or y in used:
                     continue
                 tx, ty = tri[x], tri[y]

@@ -117,12 +117,31 @@ def _rays(scene, rng, n):
     return origins, directions
 
 
+def _dented_cornell():
+    """The Cornell box with one corner of the tall block's top pushed down: that
+    block is no shell, so it stays a boxed triangle group beside the shells."""
+    import dataclasses
+    scene = load_scene("cornell")
+    tri = scene.triangles.copy()
+    top = np.flatnonzero(scene.prim_group[:scene.n_triangles] == 2)[0]
+    tri[top, 1] += [0.0, -40.0, 0.0]
+    return dataclasses.replace(scene, triangles=tri)
+
+
+def test_a_block_that_is_no_shell_stays_a_boxed_group():
+    tr = Tracer(_dented_cornell())
+    assert [s.shape for s in tr._shells] == [(1, 7), (1, 6)]
+    assert len(tr._boxed[0]) == 1 and tr._boxed[0][0].k == 10
+
+
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
-def test_shells_give_the_triangle_groups_closest_hits(dtype):
+@pytest.mark.parametrize("make", [lambda: load_scene("cornell"), _dented_cornell], ids=["cornell", "dented"])
+def test_shells_give_the_triangle_groups_closest_hits(dtype, make):
     """Equal but for rays through an edge or a corner, which either triangle (or
     face) may claim and the triangle test may let through; elsewhere the same
-    triangle at distances equal to the float rounding of the tests."""
-    scene = load_scene("cornell")
+    triangle at distances equal to the float rounding of the tests. The dented
+    box takes the path with a boxed group beside the shells."""
+    scene = make()
     rng = np.random.default_rng(SEED)
     o, d = _rays(scene, rng, 60_000)
     tmax = np.where(rng.random(len(o)) < 0.3, rng.uniform(1.0, 800.0, len(o)), np.inf)
