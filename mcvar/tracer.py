@@ -402,7 +402,7 @@ class Tracer:
     def _face_prim(self, code, o4, d, t):
         """The triangle of each shell face hit (``code`` > 0; -1 for 0), by the side of the face's diagonal."""
         code = code.astype(np.intp)
-        tab = self._face_table                                                   # (6, K + 1)
+        tab = self._face_table                                                   # (4, K + 1)
         with np.errstate(invalid="ignore"):              # misses: inf x 0
             side = np.take(tab[3], code)
             for i in range(3):
@@ -695,18 +695,15 @@ class Tracer:
                 better = t < tb
                 np.copyto(tb, t, where=better)
                 np.copyto(pb, p, where=better)
-                if shells:
-                    code[sl][better] = 0
         # the shells, in slices of SHELL_SLICE rays (a shell costs ~20 NumPy calls)
         for s in range(0, n, _convex.SHELL_SLICE) if shells else ():
             sl = slice(s, min(n, s + _convex.SHELL_SLICE))
             tb, cb = t_out[sl], code[sl]
-            for shell in shells:
-                t, c = _convex.shell_hits(shell, o4[:, sl], d[:, sl], self.epsilon)
-                better = t < tb
-                np.copyto(tb, t, where=better)
-                np.copyto(cb, c, where=better)
-                np.copyto(p_out[sl], -1, where=better)
+            t, c = self._shell_hits(o4[:, sl], d[:, sl])
+            better = t < tb
+            np.copyto(tb, t, where=better)
+            np.copyto(cb, c, where=better)
+            np.copyto(p_out[sl], -1, where=better)
         # all boxes at once, against the closest hit so far (conservative), in
         # slices of 4 chunks: the slab test's temporaries are small and NumPy's
         # per-call overhead dominated at 2048 rays (measured: 65 536 rays
@@ -740,6 +737,16 @@ class Tracer:
             t_out[p_out < 0] = np.inf
         return t_out.astype(t_dtype, copy=False), p_out
 
+    def _shell_hits(self, o4, d):
+        """The nearest face crossing over all shell stacks: ``(t, code)`` (:func:`mcvar.convex.shell_hits`)."""
+        t, c = _convex.shell_hits(self._shells[0], o4, d, self.epsilon)
+        for stack in self._shells[1:]:
+            t2, c2 = _convex.shell_hits(stack, o4, d, self.epsilon)
+            better = t2 < t
+            np.copyto(t, t2, where=better)
+            np.copyto(c, c2, where=better)
+        return t, c
+
     def _closest_shells(self, o, d, tmax, t_dtype):
         """:meth:`_closest_triangles` for scenes of convex shells and unboxed
         triangle groups (the Cornell box: its room and blocks, and the light),
@@ -748,17 +755,11 @@ class Tracer:
         o4, d, tm = self._as_rays(o, d, tmax)
         t_out = np.empty(n, dtype=self.dtype)
         p_out = np.empty(n, dtype=np.int64)
-        eps = self.epsilon
         step = _convex.SHELL_SLICE
         for s in range(0, n, step):
             sl = slice(s, min(n, s + step))
             oc, dc = o4[:, sl], d[:, sl]
-            t, c = _convex.shell_hits(self._shells[0], oc, dc, eps)
-            for stack in self._shells[1:]:
-                t2, c2 = _convex.shell_hits(stack, oc, dc, eps)
-                better = t2 < t
-                np.copyto(t, t2, where=better)
-                np.copyto(c, c2, where=better)
+            t, c = self._shell_hits(oc, dc)
             if tmax is not None:
                 beyond = t >= tm[sl]
                 np.copyto(t, tm[sl], where=beyond)
