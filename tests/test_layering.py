@@ -45,7 +45,7 @@ PACKAGE_ORDER = {
     "testing": ["_domains", "_chi2", "checks", "mutants", "bugs", "grade", "exercises", "__init__"],
     "scenefile": ["xml", "mesh", "props", "lights", "build", "write", "__init__"],
     "interop": ["mitsuba", "__init__"],
-    "integrators": ["registry", "knobs", "emitters", "settings", "film", "stream", "directions", "state", "lambertian", "path", "aov", "position", "light", "caustics", "bdpt", "pssmlt", "mmlt_lambertian", "mmlt_states", "mmlt", "radiosity", "photon", "sppm", "allocation", "driver", "__init__"],
+    "integrators": ["registry", "knobs", "emitters", "settings", "film", "stream", "directions", "state", "reuse", "lambertian", "path", "aov", "position", "light", "caustics", "bdpt", "pssmlt", "mmlt_lambertian", "mmlt_states", "mmlt", "radiosity", "photon", "sppm", "allocation", "driver", "__init__"],
 }
 
 

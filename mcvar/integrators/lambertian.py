@@ -41,6 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 from .directions import Vertex, sample_directions
+from .reuse import PathReuse
 from .state import PathState, Transport, dot, shadow_rays
 from .stream import BSDF, CAMERA_DIMS, LIGHT, ROULETTE, VERTEX_DIMS
 
@@ -145,7 +146,8 @@ class _VertexColumns:
 def _rows(state: PathState, a: int, b: int) -> PathState:
     """Rows ``a:b`` of ``state`` as a :class:`PathState` of views (no copy)."""
     view = PathState.__new__(PathState)
-    view.geo, view.weights, view.idx, view.tag = state.geo[:, a:b], state.weights[:, a:b], state.idx[a:b], None
+    view.geo, view.weights, view.idx = state.geo[:, a:b], state.weights[:, a:b], state.idx[a:b]
+    view.tag = None if state.tag is None else state.tag[a:b]
     return view
 
 
@@ -166,8 +168,11 @@ def trace_lambertian(tr: Transport, o, d, *, slots: int | None = None) -> None:
     total = d.shape[1]
     slots = WAVEFRONT_PATHS if slots is None else slots
     refill_below = max(1, int(REFILL_BELOW * slots))
-    nxt = min(total, slots)
+    reuse = PathReuse.start(tr, total, slots)
+    nxt = min(total, slots) if reuse is None else reuse.aligned(0, slots)
     state = PathState(o[:, :nxt], d[:, :nxt], dtype=dt)
+    if reuse is not None:
+        state.tag = state.idx.copy()        # where a row's radiance goes (its reuse column from x2 on)
     depth = np.ones(nxt, dtype=np.int32)
     fresh = 0                               # rows fresh.. are new camera paths
     limit = tr.limit
@@ -204,6 +209,14 @@ def trace_lambertian(tr: Transport, o, d, *, slots: int | None = None) -> None:
             fs, fn, ft = frame[0:3], frame[3:6], frame[6:9]
             sgn = np.sign(dot(state.d, fn))
             np.negative(sgn, out=sgn)          # sign(wo . n_g); 0 (grazing) gives f = 0
+            if reuse is not None:
+                if fresh < m:
+                    reuse.first_vertices(state.idx[fresh:], p[:, fresh:], fn[:, fresh:] * sgn[fresh:],
+                                         np.take(lt.albedo, prim[fresh:], axis=1),
+                                         ~np.take(lt.black, prim[fresh:]) & (sgn[fresh:] != 0))
+                second = np.flatnonzero(depth[:fresh] == 2)
+                if second.size:
+                    reuse.connect(tr, state, second, p, fn, sgn, prim)
             if tr.nee:                         # depth + 1 <= limit on every row here
                 _next_event(tr, lt, state, cols, p, fn, sgn, prim)
             alive = np.ones(m, dtype=bool)
@@ -228,8 +241,11 @@ def trace_lambertian(tr: Transport, o, d, *, slots: int | None = None) -> None:
         depth += 1
         fresh = state.n
         if fresh < refill_below and nxt < total:
-            nxt = _refill(state, o, d, nxt, min(total, nxt + slots - fresh))
+            end = min(total, nxt + slots - fresh)
+            nxt = _refill(state, o, d, nxt, end if reuse is None else reuse.aligned(nxt, end))
             depth = np.concatenate([depth, np.ones(state.n - fresh, dtype=np.int32)])
+    if reuse is not None:
+        reuse.finish(tr)
 
 
 def _refill(state: PathState, o, d, a: int, b: int) -> int:
@@ -245,6 +261,8 @@ def _refill(state: PathState, o, d, a: int, b: int) -> int:
     weights[3, n:] = np.inf
     state.geo, state.weights = geo, weights
     state.idx = np.concatenate([state.idx, np.arange(a, b)])
+    if state.tag is not None:
+        state.tag = np.concatenate([state.tag, np.arange(a, b)])
     return b
 
 
@@ -300,7 +318,7 @@ def _next_event(tr: Transport, lt: _Tables, state: PathState, cols, p, fn, sgn, 
     keys = tr.tracer.shadow_keys(pg, side, np.zeros(go.size, dtype=np.int64))
     blocked = tr.tracer.occluded_soa(origin, d_shadow, tmax, keys)
     vis = np.flatnonzero(~blocked)
-    tr.add(np.take(idx, np.take(go, vis)), np.take(contrib, vis, 1))
+    tr.add(np.take(idx if state.tag is None else state.tag, np.take(go, vis)), np.take(contrib, vis, 1))
     tr.rays += int(go.size)
 
 
@@ -342,4 +360,4 @@ def _hit_light(tr: Transport, lt: _Tables, state: PathState, t, prim) -> None:
         p_light *= lt.pdf_area
         p_light /= cos_l
         val *= _mis_weight(lt, np.take(state.prev_pdf, lit), p_light)
-    tr.add(np.take(state.idx, lit), val)
+    tr.add(np.take(state.idx if state.tag is None else state.tag, lit), val)

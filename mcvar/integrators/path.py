@@ -157,8 +157,10 @@ def trace_camera_paths(scene, res, pixel, u, *, rng=None, tracer: Tracer | None 
     (:func:`mcvar.integrators.stream.stream_dim`) each path is a pure
     function of ``(pixel, u)``: the primary sample space of Metropolis
     light transport. ``settings`` and ``**options`` (``method``, the fields
-    of :class:`PathSettings`) as for :func:`trace_paths`. Returns
-    ``(radiance (n, 3), rays)``.
+    of :class:`PathSettings`) as for :func:`trace_paths`. Where ``pixel``
+    is runs of one length (a camera batch: each pixel's samples together),
+    ``reuse`` (path reuse) makes its tiles of consecutive runs; otherwise
+    there is no reuse. Returns ``(radiance (n, 3), rays)``.
     """
     name, settings = _method_and_settings(options, settings, "trace_camera_paths")
     u = np.asarray(u, dtype=np.float64)
@@ -168,11 +170,23 @@ def trace_camera_paths(scene, res, pixel, u, *, rng=None, tracer: Tracer | None 
     d = scene.camera.ray_directions_soa(res, pixel, u[:, :CAMERA_DIMS])
     o = np.broadcast_to(scene.camera.position[:, None], d.shape)
     stream = SampleStream(u, as_rng(rng))
-    return _trace(scene, tracer, o, d, stream, name, settings)
+    return _trace(scene, tracer, o, d, stream, name, settings, _runs(pixel) if settings.reuse > 1 else None)
 
 
-def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings):
-    """The loops' common entry: rays SoA (3, n), the method ``name``'s strategies."""
+def _runs(pixel):
+    """``(spp, pixels)`` when ``pixel`` is ``pixels`` runs of ``spp`` equal entries, else None."""
+    pixel = np.asarray(pixel).reshape(-1)
+    starts = np.flatnonzero(np.diff(pixel)) + 1
+    spp = int(starts[0]) if starts.size else pixel.size
+    if spp == 0 or pixel.size % spp or not np.all(np.diff(starts, prepend=0) == spp):
+        return None
+    return spp, pixel.size // spp
+
+
+def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings, layout=None):
+    """The loops' common entry: rays SoA (3, n), the method ``name``'s strategies;
+    ``layout`` ``(spp, pixels)``: the rays are ``pixels`` pixels' ``spp`` samples in
+    pixel-major order (a camera batch), which path reuse needs."""
     tables = SceneTables.of(scene, tracer, settings.light_sampling)
     if settings.kernel == "lambertian":
         missing = tables.lambertian_missing(tables.emitters)
@@ -180,6 +194,7 @@ def _trace(scene, tracer, o, d, stream, name: str, settings: PathSettings):
             raise ValueError(f"kernel='lambertian' needs {missing}; scene {scene.name!r} does not have it")
     tr = Transport(scene, tracer, o.shape[1], strategies=STRATEGIES[name], settings=settings, stream=stream,
                    tables=tables)
+    tr.layout = layout
     if tables.lambertian and settings.kernel != "general":
         trace_lambertian(tr, o, d)
     else:
@@ -391,7 +406,7 @@ def _next_event(tr: Transport, state: PathState, vertex: Vertex, p, ng, prim) ->
 def run_path_batch(name: str, job: BatchJob) -> BatchResult:
     """``run_batch`` of the path-tracing and direct-lighting methods (``partial(run_path_batch, name)``)."""
     pixel, o, d, stream = camera_rays(job, soa=True)
-    radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.settings)
+    radiance, rays = _trace(job.scene, job.tracer, o, d, stream, name, job.settings, (job.spp, job.n_pixels))
     if job.settings.visible_lights == "exact":
         radiance += VisibleLights(job.scene).image(job.res)[pixel]
     return camera_result(job, radiance, rays, name)

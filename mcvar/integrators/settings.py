@@ -82,6 +82,13 @@ class PathSettings:
         one with those probabilities: the same expectation without the
         variance of the choice, which holds most of the error of the light
         seen in and through a glass sphere (0: choose, the default).
+    reuse : int >= 1
+        Path reuse (:mod:`mcvar.integrators.reuse`; Bekaert et al. 2002): the
+        camera samples of this many neighbouring pixels share their paths from
+        the second vertex on, each pixel weighting them by the balance
+        heuristic. Unbiased; per-pixel variance of indirect light down up to
+        this factor, noise correlated within a tile. Lambertian kernel only
+        (1: off, the default).
 
     Examples
     --------
@@ -100,6 +107,7 @@ class PathSettings:
     visible_lights: Literal["sampled", "exact"] = "sampled"
     caustics: Literal["path", "light"] = "path"
     glass_splits: int = 0
+    reuse: int = 1
 
     def __post_init__(self):
         checked = {
@@ -112,6 +120,7 @@ class PathSettings:
             "visible_lights": check_choice(self.visible_lights, "visible_lights", VISIBLE_LIGHTS),
             "caustics": check_choice(self.caustics, "caustics", ("path", "light")),
             "glass_splits": check_count(self.glass_splits, "glass_splits", allow_zero=True),
+            "reuse": check_count(self.reuse, "reuse"),
         }
         for key, value in checked.items():          # normalised: Python ints and floats
             object.__setattr__(self, key, value)
@@ -137,7 +146,7 @@ class PathSettings:
 
 #: The fields of :class:`PathSettings` a method declares in its ``options``
 #: when it reads them (``max_depth`` and ``heuristic`` apply to every method).
-PATH_OPTIONS = ("kernel", "light_sampling", "rr_depth", "rr_threshold", "visible_lights", "caustics", "glass_splits")
+PATH_OPTIONS = ("kernel", "light_sampling", "rr_depth", "rr_threshold", "visible_lights", "caustics", "glass_splits", "reuse")
 
 
 @dataclass(frozen=True)

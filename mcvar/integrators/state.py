@@ -353,6 +353,8 @@ class Transport:
         self.splits = settings.glass_splits if tables.glass.any() else 0
         #: a path was split: several rows of the state add to one output row
         self.duplicates = False
+        #: ``(spp, pixels)`` of a camera batch in pixel-major order (path reuse's tiles), else None
+        self.layout = None
         #: :class:`~mcvar.integrators.emitters.VisibleLights` whose direct view
         #: by camera rays is left to the caller's exact image (None: sampled)
         self.visible = VisibleLights(scene) if settings.visible_lights == "exact" else None
