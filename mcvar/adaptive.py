@@ -20,6 +20,7 @@ from .integrators import Render, render
 from .integrators.allocation import (ADAPTIVE_DIM, PILOT_MAX_DEPTH, PILOT_PATHS_PER_BATCH, Adaptive,
                                      AdaptiveRender, allocate)
 from .integrators.registry import get_method, pop_method_name
+from .integrators.reuse import REUSE_SIZE
 from .scene import Scene
 
 __all__ = ["render_adaptive", "allocate", "AdaptiveRender", "ADAPTIVE_SETTINGS", "adaptive_settings"]
@@ -42,7 +43,8 @@ ADAPTIVE_RR_THRESHOLD = 0.2
 #: a camera ray that meets glass follows both lobes (MSE 4.8e-5 -> 3.3e-5 for +8%
 #: CPU time; docs/performance.md).
 ADAPTIVE_SETTINGS = {"rr_depth": ADAPTIVE_RR_DEPTH, "visible_lights": "exact",
-                     "rr_threshold": ADAPTIVE_RR_THRESHOLD, "caustics": "light", "glass_splits": 1}
+                     "rr_threshold": ADAPTIVE_RR_THRESHOLD, "caustics": "light", "glass_splits": 1,
+                     "reuse": REUSE_SIZE}
 
 #: The fields of :class:`~mcvar.integrators.allocation.Adaptive` render_adaptive takes as keywords.
 _ALLOCATION_KEYS = ("pilot_spp", "min_spp", "max_spp", "exponent")

@@ -74,7 +74,7 @@ def _cmd_render(args) -> int:
     # estimator options of the path methods, only when asked for (other methods do not take them)
     tuning = {k: v for k, v in (("visible_lights", args.visible_lights), ("rr_threshold", args.rr_threshold),
                                 ("rr_depth", args.rr_depth), ("caustics", args.caustics),
-                                ("glass_splits", args.glass_splits)) if v is not None}
+                                ("glass_splits", args.glass_splits), ("reuse", args.reuse)) if v is not None}
     common = dict(method=method.name, spp=args.spp, res=args.res, sampler=args.sampler, rng=args.seed,
                   max_depth=args.max_depth, heuristic=args.heuristic, progress=not args.quiet)
     if _adaptive_default(args, method):
@@ -352,6 +352,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--glass-splits", type=int, default=None,
                    help="camera rays follow both lobes of glass at their first N glass vertices (default: 1 for "
                         "adaptive renders, 0 with --uniform)")
+    p.add_argument("--reuse", type=int, default=None,
+                   help="path reuse: camera samples of N neighbouring pixels share their paths from the second "
+                        "vertex on, balance-heuristic weighted (unbiased; Lambertian scenes; noise correlated "
+                        "within a tile; default: 4 for adaptive renders, 1 (off) with --uniform)")
     p.add_argument("--rr-threshold", type=float, default=None,
                    help="Russian roulette survival max(beta) / THRESHOLD, in (0, 1] (default: 0.2 for "
                         "adaptive renders, a weight window; 1, pbrt's rule, with --uniform)")

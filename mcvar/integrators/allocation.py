@@ -290,6 +290,15 @@ class Uniform:
 TAIL_SPLIT = 4
 
 
+def _blocks(pixels, width: int):
+    """``pixels`` (row-major indices of an image ``width`` wide) in 2 x 2 blocks:
+    the blocks in row-major order, each block's pixels in row-major order, so
+    that 4 consecutive pixels of a full block are its 4 pixels (the tiles of
+    path reuse, :mod:`mcvar.integrators.reuse`)."""
+    y, x = np.divmod(pixels, width)
+    return pixels[np.lexsort((x & 1, y & 1, x >> 1, y >> 1))]
+
+
 def _plain_specs(levels, paths_per_batch: int):
     """Batches of at most ``paths_per_batch`` paths for (n, pixels) levels, lazily."""
     for n, pixels in levels:
@@ -523,7 +532,7 @@ class Adaptive:
             if pilot:
                 # the pilot only ranks pixels: its paths are cut at PILOT_MAX_DEPTH
                 # segments, and the image never sees them
-                levels = [(pilot, np.arange(n_pix))]
+                levels = [(pilot, _blocks(np.arange(n_pix), w))]
                 run.stage(_level_specs(levels, self.pilot_paths_per_batch),
                           _count_level_specs(levels, self.pilot_paths_per_batch), run.streams.stage[0],
                           sink(pilot_film), settings=self._pilot_settings(plan))
@@ -533,7 +542,7 @@ class Adaptive:
                 counts = allocate(sigma.reshape(-1), n_pix * (spp - pilot), min_spp=self.min_spp,
                                   max_spp=self.max_spp, exponent=self.exponent)
             # most samples per pixel first (seeds go by batch index: the image does not depend on the order)
-            levels = [(int(n), np.flatnonzero(counts == n)) for n in np.unique(counts)[::-1]]
+            levels = [(int(n), _blocks(np.flatnonzero(counts == n), w)) for n in np.unique(counts)[::-1]]
             caustic = caustic_stage(run)
             per = self.paths_per_batch
             run.stage(_level_specs(levels, per, TAIL_SPLIT), _count_level_specs(levels, per, TAIL_SPLIT),
