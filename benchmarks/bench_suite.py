@@ -187,6 +187,16 @@ def mean_z_scores(images, reference, reference_var, reference_dof: float = math.
     return np.sign(t) * stats.norm.isf(p / 2)
 
 
+def block_means(image, reference_var=None, b: int = 2):
+    """Means over ``b x b`` pixel blocks of an ``(H, W, 3)`` image; with
+    ``reference_var`` (a reference's per-pixel variance of the mean, its pixels
+    independent) the variance of those means instead: ``sum / b^4``."""
+    x = np.asarray(image if reference_var is None else reference_var, dtype=np.float64)
+    h, w, c = x.shape
+    s = x[:h - h % b, :w - w % b].reshape(h // b, b, w // b, b, c).sum(axis=(1, 3))
+    return s / b ** 2 if reference_var is None else s / b ** 4
+
+
 def efficiency_ratio(mse_other: float, seconds_other: float, mse_ours: float, seconds_ours: float) -> float:
     """``(MSE x time of the other engine) / (MSE x time of ours)``: > 1 when ours is ahead."""
     ours = mse_ours * seconds_ours
@@ -472,7 +482,7 @@ def _load() -> str:
 
 def run_suite(args, libllvm, mitsuba_ok) -> list[dict]:
     refs = {c: reference(c, args.ref_paths, libllvm, mitsuba_ok) for c in args.cases}
-    rows = {(c, e): {"seconds": [], "errors": [], "images": [], "spp": []}
+    rows = {(c, e): {"seconds": [], "errors": [], "errors_block": [], "images": [], "spp": []}
             for c in args.cases for e in list(MCVAR) + ([f"Mitsuba {s}" for s in MITSUBA_SAMPLERS] if mitsuba_ok else [])}
     loads = [os.getloadavg()[0]]
     print(f"suite: {args.rounds} rounds x {args.seeds} seeds, load average {_load()} on {os.cpu_count()} CPUs",
@@ -498,6 +508,10 @@ def run_suite(args, libllvm, mitsuba_ok) -> list[dict]:
                         [case.spp] * len(got[f"{n}/seconds"])
                     mean, var, _, _ = refs[case]
                     rows[key]["errors"] += [mse_minus_floor(im, mean, var) for im in got[f"{n}/images"]]
+                    # the same on 2 x 2 block means: what correlated pixels (path reuse) give the image seen coarser
+                    rows[key]["errors_block"] += [mse_minus_floor(block_means(im), block_means(mean),
+                                                                  block_means(None, var))
+                                                  for im in got[f"{n}/images"]]
         loads.append(os.getloadavg()[0])
         print(f"  round {rnd + 1}/{args.rounds} done, load average {_load()}", flush=True)
     out = []
@@ -505,7 +519,8 @@ def run_suite(args, libllvm, mitsuba_ok) -> list[dict]:
         mean, var, dof, what = refs[case]
         s = summarize(r["seconds"], r["errors"], case.res ** 2 * float(np.mean(r["spp"])))
         z = mean_z_scores(np.asarray(r["images"]), mean, var, dof) if len(r["images"]) > 1 else np.full(3, np.nan)
-        out.append({"case": case.name, "engine": engine, **s, "z_max": float(np.nanmax(np.abs(z))),
+        out.append({"case": case.name, "engine": engine, **s, "mse_block": float(np.mean(r["errors_block"])),
+                    "z_max": float(np.nanmax(np.abs(z))),
                     "z": [round(float(x), 2) for x in z], "floor": float(var.mean()), "reference": what})
     out.append({"loads": loads})
     return out
@@ -521,7 +536,8 @@ def report_suite(rows: list[dict], mitsuba_ok: bool, why: str | None) -> tuple[s
         flag = "  DISAGREES" if r["z_max"] > Z_FLAG else ""
         print(f"  {r['case']:<32} {r['engine']:<22} z = {r['z']}{flag}")
     lines = ["| case | Mitsuba best: s / MSE / MSE x time | mcvar default: s / MSE / MSE x time | "
-             "mcvar plain: s / MSE / MSE x time | ratio default (plain) |", "|---|---|---|---|---|"]
+             "mcvar plain: s / MSE / MSE x time | ratio default (plain) | ratio on 2 x 2 means |",
+             "|---|---|---|---|---|---|"]
     ratios = []
     for case in dict.fromkeys(r["case"] for r in rows):
         by = {r["engine"]: r for r in rows if r["case"] == case}
@@ -537,10 +553,12 @@ def report_suite(rows: list[dict], mitsuba_ok: bool, why: str | None) -> tuple[s
             ratio = efficiency_ratio(m["mse"], m["seconds"], d["mse"], d["seconds"])
             ratio_p = efficiency_ratio(m["mse"], m["seconds"], p["mse"], p["seconds"])
             ratios.append(ratio)
+            coarse = (f"{efficiency_ratio(m['mse_block'], m['seconds'], d['mse_block'], d['seconds']):.2f}"
+                      if "mse_block" in m and "mse_block" in d else "")
             lines.append(f"| {case} | {m['engine'].split()[-1]}: {cell(m)} | {cell(d)} | {cell(p)} | "
-                         f"**{ratio:.2f}** ({ratio_p:.2f}) |")
+                         f"**{ratio:.2f}** ({ratio_p:.2f}) | {coarse} |")
         else:
-            lines.append(f"| {case} | skipped | {cell(d)} | {cell(p)} | |")
+            lines.append(f"| {case} | skipped | {cell(d)} | {cell(p)} | | |")
     lines.append("")
     lines.append("| case | " + " | ".join(dict.fromkeys(r["engine"] for r in rows)) + " |")
     lines.append("|---|" + "---|" * len(dict.fromkeys(r["engine"] for r in rows)))

@@ -179,3 +179,22 @@ def test_triangle_series_seeds_are_fresh_in_every_round(suite):
     assert suite.triangle_seeds(0, 1) == "2000"
     with pytest.raises(SystemExit, match="--triangle-seeds"):
         suite.main(["--triangle-seeds", "0", "--no-mitsuba"])
+
+
+def test_block_mse_sees_correlated_pixels(suite):
+    """On 2 x 2 block means, an image of independent pixels' noise has a quarter of its
+    per-pixel MSE, one whose noise is shared within each block all of it (exact here:
+    the noise is built so), and the reference's variance is that of its blocks' means."""
+    rng = np.random.default_rng(12)
+    truth = rng.random((8, 12, 3))
+    noise = rng.standard_normal((8, 12, 3))
+    block = rng.standard_normal((4, 6, 3)).repeat(2, axis=0).repeat(2, axis=1)
+    zero = np.zeros_like(truth)
+    fine = suite.mse_minus_floor(truth + noise, truth, zero)
+    coarse = suite.mse_minus_floor(suite.block_means(truth + noise), suite.block_means(truth), zero[::2, ::2])
+    expect = np.mean(suite.block_means(noise) ** 2)
+    assert coarse == pytest.approx(expect, rel=1e-12) and coarse < fine
+    assert suite.mse_minus_floor(suite.block_means(truth + block), suite.block_means(truth),
+                                 zero[::2, ::2]) == pytest.approx(np.mean(block ** 2), rel=1e-12)
+    var = rng.random((8, 12, 3))
+    assert np.allclose(suite.block_means(None, var), var.reshape(4, 2, 6, 2, 3).sum(axis=(1, 3)) / 16)
