@@ -98,7 +98,8 @@ def test_adaptive_default_agrees_with_mitsuba(monkeypatch):
     assert_agrees(images, "cornell", "render_adaptive default (16 x 64 spp) on cornell")
 
 
-@pytest.mark.parametrize("value,exc", [(0, ValueError), (-2, ValueError), (2.5, TypeError), ("4", TypeError)])
+@pytest.mark.parametrize("value,exc", [(0, ValueError), (-2, ValueError), (2.5, TypeError), ("4", TypeError),
+                                       (17, ValueError), (True, TypeError)])
 def test_bad_reuse_is_refused_by_name(value, exc):
     with pytest.raises(exc, match="reuse"):
         PathSettings(reuse=value)
