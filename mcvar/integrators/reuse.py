@@ -118,7 +118,7 @@ class PathReuse:
         row = np.take(state.idx, at)
         n = row.size
         x2, n2 = np.take(p, at, axis=1), np.take(fn, at, axis=1)
-        s2, p2 = np.take(sgn, at), np.take(prim, at)
+        s2 = np.take(sgn, at)
         pix = row // spp
         me = pix % K                                       # this path's technique in its tile
         mem_pix = (pix - me)[None, :] + np.arange(K)[:, None]
@@ -149,7 +149,7 @@ class PathReuse:
         a, j = np.nonzero(need)
         if a.size:
             origin, d_sh, tmax = _to_points(np.take(x2, j, 1), np.take(n2s, j, 1), xk[0:3, a, j], tr.eps)
-            keys = tr.tracer.shadow_keys(np.take(p2, j), np.take(s2, j), np.full(j.size, -1))
+            keys = tr.tracer.shadow_keys(np.take(prim, np.take(at, j)), np.take(s2, j), np.full(j.size, -1))
             blocked = tr.tracer.occluded_soa(origin, d_sh, tmax, keys)
             dens[a[blocked], j[blocked]] = 0.0
             tr.rays += int(a.size)
@@ -176,10 +176,9 @@ class PathReuse:
             alb = self.first[6:9]
             for c in range(3):
                 rho_j = np.take(alb[c], sub).astype(np.float64)
-                g = np.take(alb[c], to) * frac
+                g = np.divide(np.take(alb[c], to), rho_j, out=np.zeros(sub.size), where=rho_j > 0)
+                g *= frac
                 g *= np.take(ext[c], sub + total)
-                np.divide(g, rho_j, out=g, where=rho_j > 0)
-                g[rho_j <= 0] = 0.0
                 rad[c] += np.bincount(to, weights=g, minlength=total)
         tr.radiance = rad
 
