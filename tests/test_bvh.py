@@ -291,6 +291,8 @@ def test_bad_input_is_refused():
         B.build_bvh(tri, dtype="float16")
     with pytest.raises(ValueError, match=r"\(3, n\)"):
         B.closest(B.build_bvh(tri), np.zeros((5, 3)), np.zeros((5, 3)), np.inf, 1e-6)
+    with pytest.raises(ValueError, match=r"tmax must be a scalar or of shape \(3,\)"):
+        B.occluded(B.build_bvh(tri), np.zeros((3, 3)), np.ones((3, 3)), np.ones(2), 1e-6)
     with pytest.raises(ValueError, match="k"):
         subdivide(load_scene("cornell"), 0)
 

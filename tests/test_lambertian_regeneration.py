@@ -287,3 +287,31 @@ def test_the_tail_split_render_agrees_with_uncut_batches(cornell, monkeypatch):
     b = means(seeds[R:])
     t, p = stats.ttest_ind(a, b, axis=0, equal_var=False)
     assert np.all(p > ALPHA), (a.mean(0), b.mean(0), t, p)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_the_kernels_triangle_tables_are_built_once_per_render_in_its_precision(cornell, monkeypatch, precision):
+    """The per-triangle tables (frames, albedo, f Le) are kept on the scene
+    tables: built once for a render of several batches, in the tracer's
+    precision, read-only, and holding each triangle's own normal and albedo."""
+    built = []
+    arrays = lambertian._Tables._arrays
+
+    def counting(tr, dt):
+        out = arrays(tr, dt)
+        built.append((dt, out))
+        return out
+    monkeypatch.setattr(lambertian._Tables, "_arrays", staticmethod(counting))
+    res, spp = 64, 2 * PATHS_PER_BATCH // (64 * 64)          # two batches
+    r = render(cornell, spp=spp, res=res, sampler="random", rng=SEED, precision=precision, max_depth=3)
+    assert r.spp == spp and len(built) == 1
+    dt, (frame9, albedo, f_le, black) = built[0]
+    assert dt == np.dtype(precision) and frame9.dtype == np.dtype(precision)
+    assert not any(a.flags.writeable for a in (frame9, albedo, f_le, black))
+    from mcvar.tracer import Tracer
+    normal = Tracer(cornell, dtype=precision).triangle_normal.T                 # (3, T), unflipped
+    np.testing.assert_allclose(frame9[3:6], normal, rtol=0, atol=4 * np.finfo(precision).eps)
+    mat = np.asarray(cornell.prim_material)
+    for mi, m in enumerate(cornell.materials):
+        np.testing.assert_array_equal(albedo[:, mat == mi], np.broadcast_to(m.albedo[:, None], (3, int((mat == mi).sum()))))
+    assert np.array_equal(black, ~np.any(albedo > 0, axis=0))
