@@ -290,23 +290,29 @@ def test_the_tail_split_render_agrees_with_uncut_batches(cornell, monkeypatch):
 
 
 @pytest.mark.parametrize("precision", ["float32", "float64"])
-def test_the_kernels_triangle_tables_are_built_once_per_render_in_its_precision(cornell, monkeypatch, precision):
+def test_the_kernels_triangle_tables_are_built_once_per_render_in_its_precision(cornell, monkeypatch, tmp_path,
+                                                                                 precision):
     """The per-triangle tables (frames, albedo, f Le) are kept on the scene
-    tables: built once for a render of several batches, in the tracer's
+    tables: built once for a render of several batches and two workers (in
+    the parent, before the worker forks: ``Method.warm``), in the tracer's
     precision, read-only, and holding each triangle's own normal and albedo."""
-    built = []
-    arrays = lambertian._Tables._arrays
+    import os
 
-    def counting(tr, dt):
-        out = arrays(tr, dt)
-        built.append((dt, out))
+    built, log = [], tmp_path / "builds"
+    build = lambertian._build_tables
+
+    def counting(tables, dt):              # a worker process's builds reach the log file
+        out = build(tables, dt)
+        built.append((os.getpid(), dt, out))
+        with open(log, "a") as fh:
+            fh.write(f"{os.getpid()}\n")
         return out
-    monkeypatch.setattr(lambertian._Tables, "_arrays", staticmethod(counting))
+    monkeypatch.setattr(lambertian, "_build_tables", counting)
     res, spp = 64, 2 * PATHS_PER_BATCH // (64 * 64)          # two batches
     r = render(cornell, spp=spp, res=res, sampler="random", rng=SEED, precision=precision, max_depth=3)
     assert r.spp == spp and len(built) == 1
-    dt, (frame9, albedo, f_le, black) = built[0]
-    assert dt == np.dtype(precision) and frame9.dtype == np.dtype(precision)
+    pid, dt, (frame9, albedo, f_le, black) = built[0]
+    assert pid == os.getpid() and dt == np.dtype(precision) and frame9.dtype == np.dtype(precision)
     assert not any(a.flags.writeable for a in (frame9, albedo, f_le, black))
     from mcvar.tracer import Tracer
     normal = Tracer(cornell, dtype=precision).triangle_normal.T                 # (3, T), unflipped
@@ -315,3 +321,8 @@ def test_the_kernels_triangle_tables_are_built_once_per_render_in_its_precision(
     for mi, m in enumerate(cornell.materials):
         np.testing.assert_array_equal(albedo[:, mat == mi], np.broadcast_to(m.albedo[:, None], (3, int((mat == mi).sum()))))
     assert np.array_equal(black, ~np.any(albedo > 0, axis=0))
+    # two workers: the forked worker inherits the parent's tables (no build in the worker, none in a batch)
+    log.unlink()
+    r2 = render(cornell, spp=spp, res=res, sampler="random", rng=SEED, precision=precision, max_depth=3, workers=2)
+    assert log.read_text().split() == [str(os.getpid())]
+    np.testing.assert_array_equal(r2.image, r.image)

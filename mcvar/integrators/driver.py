@@ -523,6 +523,8 @@ class _Render:
         self.prepared = plan.method.prepare(plan.scene, plan.options, self.streams.prepare) \
             if plan.method.prepare is not None else None
         self.tracer = Tracer(plan.scene, dtype=plan.run.precision)
+        if plan.method.warm is not None:       # caches every batch reads, built before workers fork
+            plan.method.warm(plan.scene, self.tracer, plan.settings)
         self.shared = _Shared(plan.scene, self.tracer, self.prepared)
         self.interrupted = False
         self.done = 0

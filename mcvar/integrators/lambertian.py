@@ -45,48 +45,54 @@ from .reuse import PathReuse
 from .state import PathState, Transport, dot, shadow_rays
 from .stream import BSDF, CAMERA_DIMS, LIGHT, ROULETTE, VERTEX_DIMS
 
-__all__ = ["trace_lambertian"]
+__all__ = ["trace_lambertian", "triangle_tables"]
 
 
 class _Tables:
     """Per-triangle albedo, ``albedo Le / pi`` and unflipped frames (9, T) in the
-    tracer's precision.
-
-    The per-triangle arrays depend only on the scene tables and the precision,
-    so they are built once per :class:`~mcvar.integrators.state.SceneTables`
-    (kept on it, as it is kept on the tracer), not per batch: at 100,922
-    triangles they cost 3.5 ms a batch, and an adaptive render has ~20 batches.
-    """
+    tracer's precision (:func:`triangle_tables`), and the light's constants."""
 
     def __init__(self, tr: Transport):
-        tables = tr.tables
-        dt = np.dtype(tr.tracer.dtype)
-        cache = tables.__dict__.setdefault("_lambertian_tables", {})
-        arrays = cache.get(dt)
-        if arrays is None:
-            arrays = cache[dt] = self._arrays(tr, dt)
-        self.frame9, self.albedo, self.f_le, self.black = arrays
+        self.frame9, self.albedo, self.f_le, self.black = triangle_tables(tr.tables, tr.tracer.dtype)
         em = tr.emitters
-        self.emits = tables.emits                    # the light's triangles (no other emitter here)
+        self.emits = tr.tables.emits                 # the light's triangles (no other emitter here)
         self.le = em.radiance_soa[:, 0].copy()
         self.n_l = [float(c) for c in em.normal_soa[:, 0]]
         self.pdf_area = float(em.pdf_area[0])
         #: exponent of the MIS heuristic (power 2, balance 1), written out below
         self.mis_beta = {"power": 2.0, "balance": 1.0}[tr.settings.heuristic]
 
-    @staticmethod
-    def _arrays(tr: Transport, dt):
-        scene, tables = tr.scene, tr.tables
-        frame9 = np.ascontiguousarray(np.concatenate(
-            [tables.frame_s[:, 0::2], tables.frame_n[:, 0::2], tables.frame_t[:, 0::2]]), dtype=dt)
-        albedo = np.array([m.albedo for m in scene.materials]).T          # (3, M)
-        albedo = np.ascontiguousarray(albedo[:, scene.prim_material])      # (3, T)
-        le = tr.emitters.radiance_soa[:, :1]
-        f_le = np.ascontiguousarray(albedo / np.pi * le)                  # NEE's f Le per triangle
-        black = ~np.any(albedo > 0.0, axis=0)
-        for a in (frame9, albedo, f_le, black):
-            a.setflags(write=False)                  # shared by every batch of the tracer
-        return frame9, albedo, f_le, black
+
+def triangle_tables(tables, dtype) -> tuple:
+    """The kernel's per-triangle tables of ``tables`` (a
+    :class:`~mcvar.integrators.state.SceneTables`) in ``dtype``: ``(frame9 (9, T),
+    albedo (3, T), f_le (3, T), black (T,))``, read-only.
+
+    They depend only on the scene tables and the precision, so they are built
+    once and kept on the scene tables (which are kept on the tracer), not per
+    batch: at 100,922 triangles they cost 3.5 ms, and an adaptive render has
+    ~20 batches.
+    """
+    dt = np.dtype(dtype)
+    cache = tables.__dict__.setdefault("_lambertian_tables", {})
+    arrays = cache.get(dt)
+    if arrays is None:
+        arrays = cache[dt] = _build_tables(tables, dt)
+    return arrays
+
+
+def _build_tables(tables, dt) -> tuple:
+    scene = tables.scene
+    frame9 = np.ascontiguousarray(np.concatenate(
+        [tables.frame_s[:, 0::2], tables.frame_n[:, 0::2], tables.frame_t[:, 0::2]]), dtype=dt)
+    albedo = np.array([m.albedo for m in scene.materials]).T          # (3, M)
+    albedo = np.ascontiguousarray(albedo[:, scene.prim_material])      # (3, T)
+    le = tables.emitters.radiance_soa[:, :1]
+    f_le = np.ascontiguousarray(albedo / np.pi * le)                  # NEE's f Le per triangle
+    black = ~np.any(albedo > 0.0, axis=0)
+    for a in (frame9, albedo, f_le, black):
+        a.setflags(write=False)                  # shared by every batch of the tracer
+    return frame9, albedo, f_le, black
 
 
 #: Live paths of the kernel's wavefront: a batch of more camera paths is traced

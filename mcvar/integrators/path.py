@@ -47,7 +47,7 @@ from ..warps import _INV_PI
 from .directions import Vertex, sample_directions, unchecked, unit64
 from .emitters import Emitters, VisibleLights
 from .film import BatchJob, BatchResult, camera_result
-from .lambertian import trace_lambertian
+from .lambertian import trace_lambertian, triangle_tables
 from .registry import Method, pop_method_name, register
 from .settings import HEURISTICS, KERNELS, PATH_OPTIONS, STRATEGIES, PathSettings
 from .state import PathState, SceneTables, Transport, dot, roulette, shadow_rays
@@ -444,11 +444,19 @@ _SUMMARIES = {
 #: other modes have no row there. What mcvar measures is in `mcvar chart`.
 _LECTURE = {"path": ("almost", "almost")}
 
+def _warm(scene, tracer, settings: PathSettings) -> None:
+    """:attr:`Method.warm` of the path methods: the scene tables every batch reads,
+    and the Lambertian kernel's per-triangle tables where the kernel runs."""
+    tables = SceneTables.of(scene, tracer, settings.light_sampling)
+    if tables.lambertian and settings.kernel != "general":
+        triangle_tables(tables, tracer.dtype)
+
+
 _DEFAULTS = PathSettings()
 for _name, _mode in STRATEGIES.items():
     register(Method(_name, "camera", partial(run_path_batch, _name), _SUMMARIES[_name],
                     options={key: getattr(_DEFAULTS, key) for key in PATH_OPTIONS},
-                    check_scene=_check_kernel,
+                    check_scene=_check_kernel, warm=_warm,
                     lecture=_LECTURE.get(_name),
                     fixed_depth=_mode.depth,
                     **(dict(chart_row="Path Tracing",
