@@ -7,7 +7,9 @@ Loaded by ``hooks:`` in mkdocs.yml; not part of the mcvar package.
   executed copy is added to the site as ``course/NAME.ipynb``, rendered with
   its outputs by mkdocs-jupyter. Executed copies are cached in
   ``.cache/notebooks`` under a hash of the notebook and of every file in
-  ``mcvar/``: a rebuild with nothing changed executes nothing. A new notebook
+  ``mcvar/`` (``docs/notebook_cache.py``, which the notebook tests fill
+  too): a rebuild with nothing changed, or a build after the tests,
+  executes nothing. A new notebook
   appears in the nav's *Course* section by itself (sorted by file name; its
   title is its first heading).
 * **API reference.** One generated page ``api/MODULE.md`` per public module
@@ -23,11 +25,11 @@ The nav in mkdocs.yml holds the placeholders ``course/`` and ``api/``
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
 import re
+import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -35,27 +37,20 @@ from pathlib import Path
 from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import notebook_cache  # noqa: E402  (docs/notebook_cache.py, beside this hook)
+
 log = logging.getLogger("mkdocs.hooks.mcvar")
 
-ROOT = Path(__file__).resolve().parents[1]
-NOTEBOOKS = ROOT / "notebooks"
-PACKAGE = ROOT / "mcvar"
-CACHE = ROOT / ".cache" / "notebooks"
+ROOT = notebook_cache.ROOT
+NOTEBOOKS = notebook_cache.NOTEBOOKS
+PACKAGE = notebook_cache.PACKAGE
 #: Seconds one cell may run before the docs build fails.
 CELL_TIMEOUT = 600
 #: Notebooks executed at once (each runs in its own kernel process).
 PARALLEL = 2
 
 _state: dict = {}
-
-
-def _sources_digest() -> str:
-    h = hashlib.sha256()
-    for path in sorted(PACKAGE.rglob("*")):
-        if path.is_file() and "__pycache__" not in path.parts:
-            h.update(str(path.relative_to(PACKAGE)).encode())
-            h.update(path.read_bytes())
-    return h.hexdigest()
 
 
 def _title(path: Path) -> str:
@@ -83,19 +78,13 @@ def _execute(source: Path, target: Path) -> None:
         os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env_path) if p)
         NotebookClient(nb, timeout=CELL_TIMEOUT, kernel_name="python3",
                        resources={"metadata": {"path": scratch}}).execute()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_suffix(".tmp")
-    nbformat.write(nb, tmp)
-    tmp.replace(target)
+    notebook_cache.store(nb, target)
 
 
 def _executed_notebooks() -> list[tuple[Path, Path]]:
     """(source, executed copy) for every notebook; runs those not cached."""
-    digest = _sources_digest()
-    pairs = []
-    for source in sorted(NOTEBOOKS.glob("*.ipynb")):
-        key = hashlib.sha256(source.read_bytes() + digest.encode()).hexdigest()[:16]
-        pairs.append((source, CACHE / key / "course" / source.name))
+    digest = notebook_cache.sources_digest()
+    pairs = [(source, notebook_cache.cached_copy(source, digest)) for source in sorted(NOTEBOOKS.glob("*.ipynb"))]
     todo = [(s, t) for s, t in pairs if not t.is_file()]
     if todo:
         log.info("executing %d notebook(s) for the course pages", len(todo))
