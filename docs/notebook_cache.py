@@ -10,6 +10,7 @@ again. Not part of the mcvar package; imports neither mkdocs nor pytest.
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,6 +41,6 @@ def store(nb, target: Path) -> None:
     import nbformat
 
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f"{target.name}.{__import__('os').getpid()}.tmp")
+    tmp = target.with_name(f"{target.name}.{os.getpid()}.tmp")
     nbformat.write(nb, tmp)
     tmp.replace(target)
